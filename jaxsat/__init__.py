@@ -1,0 +1,31 @@
+"""jaxsat: batched, differentiable Separating Axis Theorem collision detection in JAX."""
+
+from jaxsat._narrowphase import Penetration as Penetration
+from jaxsat._narrowphase import intersects as intersects
+from jaxsat._narrowphase import penetration as penetration
+from jaxsat._poses import Pose as Pose
+from jaxsat._poses import pose2 as pose2
+from jaxsat._poses import pose3 as pose3
+from jaxsat._shapes import Polytope as Polytope
+from jaxsat._shapes import box as box
+from jaxsat._shapes import polygon as polygon
+from jaxsat._shapes import polyhedron as polyhedron
+from jaxsat._shapes import regular_polygon as regular_polygon
+from jaxsat._shapes import stack as stack
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Penetration",
+    "Polytope",
+    "Pose",
+    "box",
+    "intersects",
+    "penetration",
+    "polygon",
+    "polyhedron",
+    "pose2",
+    "pose3",
+    "regular_polygon",
+    "stack",
+]

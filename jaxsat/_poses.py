@@ -1,0 +1,95 @@
+"""Rigid poses (rotation + translation) as pytrees, differentiable in their parameters."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+__all__ = ["Pose", "pose2", "pose3"]
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Pose:
+    """A rigid transform taking local coordinates to world coordinates: x -> R x + t."""
+
+    translation: jax.Array
+    """(D,) float: position of the local origin in the world frame."""
+    rotation: jax.Array
+    """(D, D) float: rotation matrix whose columns are the local axes in the world frame."""
+
+    def __post_init__(self):
+        translation, rotation = self.translation, self.rotation
+        if not hasattr(translation, "shape") or not hasattr(rotation, "shape"):
+            return  # tree_util may rebuild poses from placeholders (e.g. vmap's in_axes specs)
+        dim = translation.shape[-1] if translation.ndim else None
+        if dim not in (2, 3) or rotation.shape[-2:] != (dim, dim):
+            raise ValueError("Pose needs translation (D,) and rotation (D, D) with D = 2 or 3, "
+                             f"got {translation.shape} and {rotation.shape}")
+
+    @property
+    def dim(self) -> int:
+        return self.translation.shape[-1]
+
+    @classmethod
+    def identity(cls, dim: int, dtype=None) -> Pose:
+        """The identity pose in `dim` = 2 or 3 dimensions."""
+        if dim not in (2, 3):
+            raise ValueError(f"dim must be 2 or 3, got {dim!r}")
+        dtype = jax.dtypes.canonicalize_dtype(float if dtype is None else dtype)
+        return cls(jnp.zeros(dim, dtype), jnp.eye(dim, dtype=dtype))
+
+    def apply(self, points: jax.Array) -> jax.Array:
+        """Map (..., D) local points to world coordinates."""
+        return points @ self.rotation.T + self.translation
+
+    def inverse(self) -> Pose:
+        """The pose taking world coordinates back to local ones."""
+        rotation_t = jnp.swapaxes(self.rotation, -1, -2)
+        return Pose(-(rotation_t @ self.translation[..., None])[..., 0], rotation_t)
+
+    def compose(self, other: Pose) -> Pose:
+        """self * other: apply `other` first, then `self`."""
+        return Pose(self.apply(other.translation), self.rotation @ other.rotation)
+
+
+def _as_float(*values):
+    arrays = [jnp.asarray(value) for value in values]
+    dtype = jnp.result_type(float, *arrays)
+    return [array.astype(dtype) for array in arrays]
+
+
+def pose2(x, y, angle) -> Pose:
+    """A 2D pose from a position and a counter-clockwise rotation angle in radians."""
+    x, y, angle = _as_float(x, y, angle)
+    if x.shape or y.shape or angle.shape:
+        raise ValueError("pose2 takes scalars x, y, angle; use jax.vmap for batches, got shapes "
+                         f"{x.shape}, {y.shape}, {angle.shape}")
+    cos, sin = jnp.cos(angle), jnp.sin(angle)
+    rotation = jnp.stack([jnp.stack([cos, -sin]), jnp.stack([sin, cos])])
+    return Pose(jnp.stack([x, y]), rotation)
+
+
+def pose3(translation, quaternion_wxyz) -> Pose:
+    """A 3D pose from a translation and a rotation quaternion (w, x, y, z).
+
+    The quaternion need not be normalised; it is divided by its norm (a zero quaternion gives
+    the identity rotation, with finite gradients).
+    """
+    translation, quaternion = _as_float(translation, quaternion_wxyz)
+    if translation.shape != (3,) or quaternion.shape != (4,):
+        raise ValueError("pose3 needs translation (3,) and quaternion_wxyz (4,), got "
+                         f"{translation.shape} and {quaternion.shape}")
+    squared_norm = jnp.sum(quaternion**2)
+    nonzero = squared_norm > jnp.finfo(quaternion.dtype).tiny
+    # Double `where`: the untaken branch must not divide by zero, or its gradient is NaN.
+    safe = jnp.where(nonzero, quaternion, jnp.array([1, 0, 0, 0], quaternion.dtype))
+    w, x, y, z = safe / jnp.sqrt(jnp.sum(safe**2))
+    rotation = jnp.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+    return Pose(translation, rotation)

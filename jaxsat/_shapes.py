@@ -1,0 +1,258 @@
+"""Convex shapes as fixed-size padded pytrees, and their eager constructors."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsat import _geometry as geometry
+
+__all__ = ["Polytope", "polygon", "polyhedron", "box", "regular_polygon", "stack"]
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Polytope:
+    """A convex polygon (D = 2) or polyhedron (D = 3) in its own local frame.
+
+    Every array is padded to a fixed size so that one compiled kernel serves every shape of a
+    size class. Padding entries repeat the first valid entry, so they never change a minimum or a
+    maximum; the masks say which entries are real. Build instances with `polygon`, `polyhedron`,
+    `box`, `regular_polygon` and batch them with `stack` (which adds a leading batch axis).
+    """
+
+    vertices: jax.Array
+    """(V, D) float: vertex coordinates in the local frame (counter-clockwise in 2D)."""
+    vertex_mask: jax.Array
+    """(V,) bool: True for real vertices, False for padding."""
+    face_normals: jax.Array
+    """(F, D) float: unit face (2D: edge) normals, unique up to sign (a box has D of them)."""
+    face_extents: jax.Array
+    """(F, 2) float: [min, max] of the shape's own vertices projected on each face normal."""
+    face_mask: jax.Array
+    """(F,) bool: True for real face normals."""
+    edge_directions: jax.Array
+    """(E, D) float: unit edge directions, unique up to sign; 3D only (E = 0 in 2D)."""
+    edge_mask: jax.Array
+    """(E,) bool: True for real edge directions."""
+    edge_endpoints: jax.Array
+    """(K, 2) int32: vertex indices of every hull edge; 3D only (K = 0 in 2D)."""
+    edge_face_normals: jax.Array
+    """(K, 2, D) float: outward unit normals of the two faces meeting at each hull edge."""
+    hull_edge_mask: jax.Array
+    """(K,) bool: True for real hull edges."""
+
+    @property
+    def dim(self) -> int:
+        """Spatial dimension, 2 or 3 (static)."""
+        return self.vertices.shape[-1]
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        """Leading batch axes (empty for a single shape)."""
+        return self.vertices.shape[:-2]
+
+    @property
+    def dtype(self) -> jnp.dtype:
+        return self.vertices.dtype
+
+
+def _float_dtype(source: np.ndarray | None, dtype) -> jnp.dtype:
+    """The JAX dtype a constructor stores: `dtype`, else the input's float dtype, else default."""
+    if dtype is None:
+        dtype = source.dtype if source is not None and np.issubdtype(source.dtype, np.floating) else float
+    dtype = jnp.dtype(dtype)
+    if not jnp.issubdtype(dtype, jnp.floating):
+        raise ValueError(f"dtype must be a floating dtype, got {dtype}")
+    return jax.dtypes.canonicalize_dtype(dtype)
+
+
+def _pad_rows(rows: np.ndarray, size: int, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Pad `rows` along axis 0 to `size` by repeating row 0; return (padded, mask)."""
+    count = len(rows)
+    if count > size:
+        raise ValueError(f"shape has {count} {name}, more than the {size} allowed")
+    if count == 0:
+        return np.zeros((size, *rows.shape[1:]), rows.dtype), np.zeros(size, bool)
+    padding = np.repeat(rows[:1], size - count, axis=0)
+    return np.concatenate([rows, padding]), np.arange(size) < count
+
+
+def _check_max_vertices(max_vertices: int | None, count: int) -> int:
+    if max_vertices is None:
+        return count
+    if int(max_vertices) != max_vertices or max_vertices < 1:
+        raise ValueError(f"max_vertices must be a positive integer, got {max_vertices!r}")
+    if count > max_vertices:
+        raise ValueError(f"shape has {count} vertices, more than max_vertices={max_vertices}")
+    return int(max_vertices)
+
+
+def _build(vertices, face_normals, edge_directions, edge_endpoints, edge_face_normals,
+           sizes: tuple[int, int, int, int], dtype) -> Polytope:
+    """Pad NumPy geometry to `sizes` = (V, F, E, K) and convert it to a Polytope of `dtype`."""
+    num_vertices, num_faces, num_edges, num_hull_edges = sizes
+    extents = vertices @ face_normals.T
+    face_extents = np.stack([extents.min(axis=0), extents.max(axis=0)], axis=1)
+    padded_vertices, vertex_mask = _pad_rows(vertices, num_vertices, "vertices")
+    padded_normals, face_mask = _pad_rows(face_normals, num_faces, "face normals")
+    padded_extents, _ = _pad_rows(face_extents, num_faces, "face normals")
+    padded_edges, edge_mask = _pad_rows(edge_directions, num_edges, "edge directions")
+    padded_endpoints, hull_edge_mask = _pad_rows(edge_endpoints, num_hull_edges, "hull edges")
+    padded_edge_normals, _ = _pad_rows(edge_face_normals, num_hull_edges, "hull edges")
+    as_float = lambda array: jnp.asarray(array, dtype=dtype)  # noqa: E731
+    return Polytope(
+        vertices=as_float(padded_vertices),
+        vertex_mask=jnp.asarray(vertex_mask),
+        face_normals=as_float(padded_normals),
+        face_extents=as_float(padded_extents),
+        face_mask=jnp.asarray(face_mask),
+        edge_directions=as_float(padded_edges),
+        edge_mask=jnp.asarray(edge_mask),
+        edge_endpoints=jnp.asarray(padded_endpoints, dtype=jnp.int32),
+        edge_face_normals=as_float(padded_edge_normals),
+        hull_edge_mask=jnp.asarray(hull_edge_mask),
+    )
+
+
+def polygon(vertices, max_vertices: int | None = None, *, dtype=None) -> Polytope:
+    """A convex polygon from its vertices, given in either winding order.
+
+    Args:
+      vertices: (N, 2) array-like of vertex coordinates in the local frame. A repeated closing
+        vertex, duplicates and vertices on a straight edge are dropped.
+      max_vertices: pad to this many vertices (and face normals) so that polygons of different
+        vertex counts share one compiled kernel. Default: no padding.
+      dtype: float dtype of the result; default: the input's float dtype, else JAX's default.
+
+    Raises:
+      ValueError: wrong shape, NaN/inf, fewer than 3 distinct vertices, collinear vertices,
+        non-convex or self-intersecting polygon, or more than `max_vertices` vertices.
+    """
+    points = geometry.as_point_array(vertices, 2, "polygon vertices")
+    ring = geometry.convex_polygon(points)
+    size = _check_max_vertices(max_vertices, len(ring))
+    normals = geometry.unique_directions(geometry.polygon_edge_normals(ring))
+    num_faces = len(normals) if max_vertices is None else size
+    return _build(ring, normals, np.zeros((0, 2)), np.zeros((0, 2), np.int64),
+                  np.zeros((0, 2, 2)), (size, num_faces, 0, 0),
+                  _float_dtype(np.asarray(vertices), dtype))
+
+
+def polyhedron(points, max_vertices: int | None = None, *, dtype=None) -> Polytope:
+    """The convex hull of a 3D point cloud, with coplanar triangles merged into faces.
+
+    Args:
+      points: (N, 3) array-like of points in the local frame; interior points are ignored.
+      max_vertices: pad to this many hull vertices, and faces and edges to the most a convex
+        polyhedron with that many vertices can have (2V - 4 faces, 3V - 6 edges), so that every
+        hull of the size class shares one compiled kernel. Default: no padding.
+      dtype: float dtype of the result; default: the input's float dtype, else JAX's default.
+
+    Raises:
+      ValueError: wrong shape, NaN/inf, fewer than 4 distinct points, collinear or coplanar
+        points, or more hull vertices than `max_vertices`.
+    """
+    cloud = geometry.as_point_array(points, 3, "polyhedron points")
+    hull = geometry.convex_hull_3d(cloud)
+    normals = geometry.unique_directions(hull.face_normals)
+    segments = hull.vertices[hull.edges[:, 1]] - hull.vertices[hull.edges[:, 0]]
+    directions = geometry.unique_directions(segments / np.linalg.norm(segments, axis=1, keepdims=True))
+    size = _check_max_vertices(max_vertices, len(hull.vertices))
+    sizes = (size, len(normals), len(directions), len(hull.edges))
+    if max_vertices is not None:
+        sizes = (size, max(2 * size - 4, 1), max(3 * size - 6, 1), max(3 * size - 6, 1))
+    return _build(hull.vertices, normals, directions, hull.edges,
+                  hull.face_normals[hull.edge_faces], sizes, _float_dtype(np.asarray(points), dtype))
+
+
+def box(half_extents, max_vertices: int | None = None, *, dtype=None) -> Polytope:
+    """An axis-aligned box centred on the origin: a rectangle (2 values) or a cuboid (3 values).
+
+    Raises:
+      ValueError: not 2 or 3 values, or a half extent that is not finite and positive.
+    """
+    half = np.asarray(half_extents, dtype=np.float64)
+    if half.shape not in ((2,), (3,)):
+        raise ValueError(f"half_extents must have 2 or 3 entries, got shape {half.shape}")
+    if not np.all(np.isfinite(half)) or np.any(half <= 0):
+        raise ValueError(f"half_extents must be finite and positive, got {half.tolist()}")
+    dtype = _float_dtype(np.asarray(half_extents), dtype)
+    if len(half) == 2:
+        corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=np.float64) * half
+        return polygon(corners, max_vertices, dtype=dtype)
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
+    return polyhedron(signs * half, max_vertices, dtype=dtype)
+
+
+def regular_polygon(num_sides: int, radius: float = 1.0, max_vertices: int | None = None, *,
+                    dtype=None) -> Polytope:
+    """A regular polygon with `num_sides` vertices on a circle of `radius` about the origin.
+
+    Raises:
+      ValueError: fewer than 3 sides, or a radius that is not finite and positive.
+    """
+    if int(num_sides) != num_sides or num_sides < 3:
+        raise ValueError(f"num_sides must be an integer >= 3, got {num_sides!r}")
+    if not np.isfinite(radius) or radius <= 0:
+        raise ValueError(f"radius must be finite and positive, got {radius!r}")
+    angles = 2 * np.pi * np.arange(int(num_sides)) / int(num_sides)
+    corners = radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    return polygon(corners, max_vertices, dtype=dtype)
+
+
+def _sizes(shape: Polytope) -> tuple[int, int, int, int]:
+    return (shape.vertices.shape[0], shape.face_normals.shape[0],
+            shape.edge_directions.shape[0], shape.edge_endpoints.shape[0])
+
+
+def _pad_polytope(shape: Polytope, sizes: tuple[int, int, int, int]) -> Polytope:
+    """Pad every field of an unbatched shape to `sizes` = (V, F, E, K), repeating entry 0."""
+    def pad(field: jax.Array, size: int) -> jax.Array:
+        extra = size - field.shape[0]
+        if extra == 0 or field.shape[0] == 0:
+            return field if extra == 0 else jnp.zeros((size, *field.shape[1:]), field.dtype)
+        filler = jnp.zeros_like(field[:1]) if field.dtype == jnp.bool_ else field[:1]
+        return jnp.concatenate([field, jnp.repeat(filler, extra, axis=0)])
+
+    size_of = {"vertex": sizes[0], "face": sizes[1], "edge_dir": sizes[2], "hull": sizes[3]}
+    groups = {
+        "vertices": "vertex", "vertex_mask": "vertex", "face_normals": "face",
+        "face_extents": "face", "face_mask": "face", "edge_directions": "edge_dir",
+        "edge_mask": "edge_dir", "edge_endpoints": "hull", "edge_face_normals": "hull",
+        "hull_edge_mask": "hull",
+    }
+    return Polytope(**{name: pad(getattr(shape, name), size_of[group])
+                       for name, group in groups.items()})
+
+
+def stack(shapes: Sequence[Polytope]) -> Polytope:
+    """Stack shapes of one dimension into a batch, padding them to common sizes.
+
+    Returns:
+      A Polytope whose fields have a leading batch axis of length len(shapes), ready for
+      `jax.vmap`.
+
+    Raises:
+      ValueError: an empty sequence, an entry that is not an unbatched Polytope, or a mix of 2D
+        and 3D shapes or of dtypes.
+    """
+    shapes = list(shapes)
+    if not shapes:
+        raise ValueError("stack needs at least one shape")
+    for index, shape in enumerate(shapes):
+        if not isinstance(shape, Polytope) or shape.batch_shape:
+            raise ValueError(f"stack entry {index} is not an unbatched jaxsat.Polytope")
+    dims = {shape.dim for shape in shapes}
+    if len(dims) > 1:
+        raise ValueError("stack cannot mix 2D and 3D shapes")
+    dtypes = {shape.dtype for shape in shapes}
+    if len(dtypes) > 1:
+        raise ValueError(f"stack cannot mix dtypes, got {sorted(str(d) for d in dtypes)}")
+    sizes = tuple(max(column) for column in zip(*(_sizes(shape) for shape in shapes)))
+    padded = [_pad_polytope(shape, sizes) for shape in shapes]
+    return jax.tree.map(lambda *fields: jnp.stack(fields), *padded)
