@@ -126,7 +126,7 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     supporting points are the edges themselves, so the depth needs no scan over vertices:
     with Plucker moments m = e x p it is -(e_b . m_a + e_a . m_b) / |e_a x e_b|, signed so the
     axis points out of a. Other pairs are skipped: their axes never give the minimum.
-    Returns (depths (K_a K_b,), axes (K_a K_b, 3) in a's frame)."""
+    Returns (depths (K_a K_b,), what `_gauss_map_axis` needs to build a winner's axis)."""
     _, dir_a, na1, na2, moment_a = _hull_edge_frames(a)
     _, dir_b, nb1, nb2, moment_b = _hull_edge_frames(b, rotation, translation)
     cba, dba = -(dir_a @ nb1.T), -(dir_a @ nb2.T)
@@ -142,8 +142,14 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     numerator = -(reciprocal.T + dir_a @ moment_b.T)
     inverse_sine = jax.lax.rsqrt(jnp.where(valid, sine_squared, 1.0))
     depths = jnp.where(valid, orientation * numerator * inverse_sine, jnp.inf).reshape(-1)
-    crosses = jnp.cross(dir_a[:, None, :], dir_b[None, :, :]) * (orientation * inverse_sine)[..., None]
-    return depths, crosses.reshape(-1, 3)
+    return depths, (dir_a, dir_b, orientation.reshape(-1))
+
+
+def _gauss_map_axis(index, dir_a, dir_b, orientation):
+    """The unit axis of flattened edge pair `index`, built only for the winner."""
+    row, col = jnp.divmod(index, dir_b.shape[0])
+    crossed = jnp.cross(dir_a[row], dir_b[col])
+    return orientation[index] * _safe_normalize(crossed, 0.0)[0]
 
 
 def _use_gauss_map(a: Polytope, b: Polytope) -> bool:
@@ -155,19 +161,27 @@ def _use_gauss_map(a: Polytope, b: Polytope) -> bool:
 
 
 def _candidate_depths(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
-    """All candidate (depth, axis in a's frame) pairs for one query."""
+    """All candidate depths (C,) of one query, and a function from a candidate's index to its
+    unit axis in a's frame (so that only the winner's axis is built when that is costly)."""
     rotation, translation = _relative_pose(pose_a, pose_b)
     b_vertices_in_a = b.vertices @ rotation.T + translation
     a_vertices_in_b = (a.vertices - translation) @ rotation
     depths, axes = _face_axes(a, b_vertices_in_a, b, a_vertices_in_b, rotation)
+    if a.dim == 3 and _use_gauss_map(a, b):
+        edge_depths, edge_data = _edge_axes_by_gauss_map(a, b, rotation, translation)
+        num_face_axes = depths.shape[0]
+
+        def axis_of(index):
+            edge_axis = _gauss_map_axis(jnp.maximum(index - num_face_axes, 0), *edge_data)
+            return jnp.where(index < num_face_axes, axes[jnp.minimum(index, num_face_axes - 1)],
+                             edge_axis)
+
+        return jnp.concatenate([depths, edge_depths]), axis_of
     if a.dim == 3:
-        if _use_gauss_map(a, b):
-            edge_depths, edge_axes = _edge_axes_by_gauss_map(a, b, rotation, translation)
-        else:
-            edge_depths, edge_axes = _edge_axes_by_projection(a, b, b_vertices_in_a, rotation)
+        edge_depths, edge_axes = _edge_axes_by_projection(a, b, b_vertices_in_a, rotation)
         depths = jnp.concatenate([depths, edge_depths])
         axes = jnp.concatenate([axes, edge_axes])
-    return depths, axes
+    return depths, lambda index: axes[index]
 
 
 def _cast_pair(a, pose_a, b, pose_b):
@@ -193,9 +207,9 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> Penetra
     """
     _check_pair(a, pose_a, b, pose_b)
     a, pose_a, b, pose_b = _cast_pair(a, pose_a, b, pose_b)
-    depths, axes = _candidate_depths(a, pose_a, b, pose_b)
+    depths, axis_of = _candidate_depths(a, pose_a, b, pose_b)
     best = jnp.argmin(depths)
-    return Penetration(depth=depths[best], normal=pose_a.rotation @ axes[best])
+    return Penetration(depth=depths[best], normal=pose_a.rotation @ axis_of(best))
 
 
 def _world_aabb(shape: Polytope, pose: Pose) -> tuple[jax.Array, jax.Array]:

@@ -22,8 +22,8 @@ class Pose:
 
     def __post_init__(self):
         translation, rotation = self.translation, self.rotation
-        if not hasattr(translation, "shape") or not hasattr(rotation, "shape"):
-            return  # tree_util may rebuild poses from placeholders (e.g. vmap's in_axes specs)
+        if not isinstance(translation, jax.Array) or not isinstance(rotation, jax.Array):
+            return  # pytree utilities rebuild poses around placeholders (axis specs, ArgInfo)
         dim = translation.shape[-1] if translation.ndim else None
         if dim not in (2, 3) or rotation.shape[-2:] != (dim, dim):
             raise ValueError("Pose needs translation (D,) and rotation (D, D) with D = 2 or 3, "
