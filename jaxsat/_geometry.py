@@ -45,8 +45,20 @@ def distinct_points(points: np.ndarray) -> np.ndarray:
     return points[np.sort(first)]
 
 
-def unique_directions(directions: np.ndarray, angle_tolerance: float = 1e-9) -> np.ndarray:
+def _parallel(u: np.ndarray, v: np.ndarray, angle_tolerance: float) -> bool:
+    """Whether unit vectors u and v are parallel or anti-parallel within `angle_tolerance`.
+
+    The sine (norm of the cross product, or 2D determinant) resolves tiny angles, unlike
+    1 - |cos|, which float64 rounds to zero below about 1e-8 radians."""
+    sine = abs(u[0] * v[1] - u[1] * v[0]) if len(u) == 2 else float(np.linalg.norm(np.cross(u, v)))
+    return sine <= angle_tolerance
+
+
+def unique_directions(directions: np.ndarray, angle_tolerance: float = 1e-12) -> np.ndarray:
     """Unit directions with parallel and anti-parallel duplicates removed.
+
+    Only directions equal up to rounding are merged (the default tolerance is 1e-12 radians),
+    so a merged axis stays exact to well below the float64 test tolerance.
 
     Args:
       directions: (K, D) unit vectors.
@@ -55,7 +67,7 @@ def unique_directions(directions: np.ndarray, angle_tolerance: float = 1e-9) -> 
     """
     kept: list[np.ndarray] = []
     for direction in directions:
-        if any(abs(abs(float(direction @ other)) - 1.0) < angle_tolerance**2 for other in kept):
+        if any(_parallel(direction, other, angle_tolerance) for other in kept):
             continue
         kept.append(direction)
     result = np.array(kept).reshape(-1, directions.shape[1])
@@ -229,13 +241,16 @@ def _merge_coplanar(points: np.ndarray, triangles: np.ndarray) -> Hull3D:
     )
 
 
-def _cluster_normals(vertices, triangles, normals, angle_tolerance: float = 1e-7):
-    """Face index of each triangle, and each face's normal refitted from all its vertices."""
+def _cluster_normals(vertices, triangles, normals, angle_tolerance: float = 1e-10):
+    """Face index of each triangle, and each face's normal refitted from all its vertices.
+
+    Triangles whose outward normals agree within `angle_tolerance` radians lie in one plane of
+    the hull (a convex hull has one supporting plane per outward normal) and form one face."""
     face_of_triangle = -np.ones(len(triangles), dtype=np.int64)
     representatives: list[np.ndarray] = []
     for t, normal in enumerate(normals):
         for f, other in enumerate(representatives):
-            if normal @ other > 1.0 - angle_tolerance**2:
+            if normal @ other > 0 and _parallel(normal, other, angle_tolerance):
                 face_of_triangle[t] = f
                 break
         else:
