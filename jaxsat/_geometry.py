@@ -92,7 +92,10 @@ def convex_polygon(vertices: np.ndarray) -> np.ndarray:
     tolerance = tolerance_for(ring)
     signed_area = 0.5 * np.sum(ring[:, 0] * np.roll(ring[:, 1], -1) - np.roll(ring[:, 0], -1) * ring[:, 1])
     if abs(signed_area) <= tolerance * max(float(np.max(np.ptp(ring, axis=0))), tolerance):
-        raise ValueError("polygon vertices are collinear: the polygon has zero area")
+        centred = ring - ring.mean(axis=0)
+        if np.linalg.svd(centred, compute_uv=False)[1] <= tolerance * np.sqrt(len(ring)):
+            raise ValueError("polygon vertices are collinear: the polygon has zero area")
+        raise ValueError("polygon is self-intersecting (its signed area is zero)")
     if signed_area < 0:
         ring = ring[::-1]
     ring = _drop_straight_vertices(ring, tolerance)
@@ -159,8 +162,17 @@ def convex_hull_3d(points: np.ndarray) -> Hull3D:
         raise ValueError(f"a polyhedron needs at least 4 distinct points, got {len(points)}")
     tolerance = tolerance_for(points)
     simplex = _initial_simplex(points, tolerance)
-    triangles = _incremental_hull(points, simplex, tolerance)
-    return _merge_coplanar(points, triangles)
+    hull = _merge_coplanar(points, _incremental_hull(points, simplex, tolerance))
+    # A point taken in early can end up inside a face or an edge once later points arrive.
+    # True corners touch at least 3 faces; rebuilding from those alone drops the others.
+    faces_at = [set() for _ in range(len(hull.vertices))]
+    for (start, end), faces in zip(hull.edges, hull.edge_faces):
+        faces_at[start].update(faces.tolist())
+        faces_at[end].update(faces.tolist())
+    corners = np.array([len(faces) >= 3 for faces in faces_at])
+    if np.all(corners):
+        return hull
+    return convex_hull_3d(hull.vertices[corners])
 
 
 def _initial_simplex(points: np.ndarray, tolerance: float) -> list[int]:

@@ -107,7 +107,7 @@ def _edge_axes_by_projection(a: Polytope, b: Polytope, b_vertices_in_a, rotation
 
 
 def _hull_edge_frames(shape: Polytope, rotation=None, translation=None):
-    """Per hull edge: a point, unit direction (b x a), adjacent normals a and b, moment e x p."""
+    """Per hull edge: a point on it, unit direction (b x a), adjacent face normals a and b."""
     points = shape.vertices[shape.edge_endpoints[:, 0]]
     normals = shape.edge_face_normals
     if rotation is not None:
@@ -115,7 +115,7 @@ def _hull_edge_frames(shape: Polytope, rotation=None, translation=None):
         normals = normals @ rotation.T
     first, second = normals[:, 0], normals[:, 1]
     directions, _ = _safe_normalize(jnp.cross(second, first), 0.0)
-    return points, directions, first, second, jnp.cross(directions, points)
+    return points, directions, first, second
 
 
 def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
@@ -123,25 +123,27 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
 
     Two edges can give the penetration axis only if their arcs on the Gauss map cross (the
     arc of a's edge and the arc of b's edge with b's normals negated); for those pairs the
-    supporting points are the edges themselves, so the depth needs no scan over vertices:
-    with Plucker moments m = e x p it is -(e_b . m_a + e_a . m_b) / |e_a x e_b|, signed so the
-    axis points out of a. Other pairs are skipped: their axes never give the minimum.
+    supporting points are the edges themselves, so the depth needs no scan over vertices: it
+    is n . (p_a - p_b) / |n| with n = e_a x e_b, signed so the axis points out of a. Other pairs
+    are skipped: their axes never give the minimum.
     Returns (depths (K_a K_b,), what `_gauss_map_axis` needs to build a winner's axis)."""
-    _, dir_a, na1, na2, moment_a = _hull_edge_frames(a)
-    _, dir_b, nb1, nb2, moment_b = _hull_edge_frames(b, rotation, translation)
+    points_a, dir_a, na1, na2 = _hull_edge_frames(a)
+    points_b, dir_b, nb1, nb2 = _hull_edge_frames(b, rotation, translation)
     cba, dba = -(dir_a @ nb1.T), -(dir_a @ nb2.T)
     adc, bdc = na1 @ dir_b.T, na2 @ dir_b.T
     minkowski_face = (cba * dba < 0) & (adc * bdc < 0) & (cba * bdc > 0)
-    cosine = dir_a @ dir_b.T
-    sine_squared = 1.0 - cosine * cosine
-    eps = jnp.finfo(cosine.dtype).eps
-    valid = minkowski_face & (sine_squared > eps)
+    crosses = jnp.cross(dir_a[:, None, :], dir_b[None, :, :])
+    # |e_a x e_b| from the cross product itself: 1 - cos^2 rounds (near-)parallel edges to
+    # noise, and noise must not pass for a Minkowski face.
+    sine_squared = jnp.sum(crosses * crosses, axis=-1)
+    min_sine = 1000 * jnp.finfo(crosses.dtype).eps
+    valid = minkowski_face & (sine_squared > min_sine * min_sine)
     # The Gauss-map arcs fix the orientation: the axis e_a x e_b points out of a iff BDC > 0.
-    orientation = jnp.where(bdc > 0, 1.0, -1.0).astype(cosine.dtype)
-    reciprocal = dir_b @ moment_a.T
-    numerator = -(reciprocal.T + dir_a @ moment_b.T)
+    orientation = jnp.where(bdc > 0, 1.0, -1.0).astype(crosses.dtype)
+    offsets = points_a[:, None, :] - points_b[None, :, :]
     inverse_sine = jax.lax.rsqrt(jnp.where(valid, sine_squared, 1.0))
-    depths = jnp.where(valid, orientation * numerator * inverse_sine, jnp.inf).reshape(-1)
+    separations = jnp.sum(crosses * offsets, axis=-1) * orientation * inverse_sine
+    depths = jnp.where(valid, separations, jnp.inf).reshape(-1)
     return depths, (dir_a, dir_b, orientation.reshape(-1))
 
 
@@ -161,8 +163,9 @@ def _use_gauss_map(a: Polytope, b: Polytope) -> bool:
 
 
 def _candidate_depths(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
-    """All candidate depths (C,) of one query, and a function from a candidate's index to its
-    unit axis in a's frame (so that only the winner's axis is built when that is costly)."""
+    """All candidate depths (C,) of one query and a function from a candidate's index to its
+    unit axis in a's frame (so only the winner's axis is built where that is costly), plus b's
+    vertices in a's frame."""
     rotation, translation = _relative_pose(pose_a, pose_b)
     b_vertices_in_a = b.vertices @ rotation.T + translation
     a_vertices_in_b = (a.vertices - translation) @ rotation
@@ -176,12 +179,12 @@ def _candidate_depths(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
             return jnp.where(index < num_face_axes, axes[jnp.minimum(index, num_face_axes - 1)],
                              edge_axis)
 
-        return jnp.concatenate([depths, edge_depths]), axis_of
+        return (jnp.concatenate([depths, edge_depths]), axis_of), b_vertices_in_a
     if a.dim == 3:
         edge_depths, edge_axes = _edge_axes_by_projection(a, b, b_vertices_in_a, rotation)
         depths = jnp.concatenate([depths, edge_depths])
         axes = jnp.concatenate([axes, edge_axes])
-    return depths, lambda index: axes[index]
+    return (depths, lambda index: axes[index]), b_vertices_in_a
 
 
 def _cast_pair(a, pose_a, b, pose_b):
@@ -202,14 +205,19 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> Penetra
       Penetration(depth, normal) in the common dtype of the inputs. depth > 0: the shapes
       overlap and depth is the exact minimum translation distance; moving b by depth * normal
       leaves them touching. depth <= 0: separated, and -depth is the largest gap found on a
-      candidate axis (a lower bound on the distance between them). normal is a world-frame unit
-      vector pointing from a towards b.
+      candidate axis: at least the largest gap over the facet normals of the Minkowski
+      difference and at most the distance between the shapes. (In 3D which edge-edge axes are
+      tried depends on the padded sizes, so this gap, unlike an overlap, can change with
+      padding.) normal is a world-frame unit vector pointing from a towards b.
     """
     _check_pair(a, pose_a, b, pose_b)
     a, pose_a, b, pose_b = _cast_pair(a, pose_a, b, pose_b)
-    depths, axis_of = _candidate_depths(a, pose_a, b, pose_b)
-    best = jnp.argmin(depths)
-    return Penetration(depth=depths[best], normal=pose_a.rotation @ axis_of(best))
+    (depths, axis_of), b_vertices_in_a = _candidate_depths(a, pose_a, b, pose_b)
+    axis = axis_of(jnp.argmin(depths))
+    # The winner's depth is measured again by projecting both shapes on its unit axis, so the
+    # depth is exactly the one its normal gives (the edge-edge shortcut loses float32 digits).
+    depth = jnp.max(a.vertices @ axis) - jnp.min(b_vertices_in_a @ axis)
+    return Penetration(depth=depth, normal=pose_a.rotation @ axis)
 
 
 def _world_aabb(shape: Polytope, pose: Pose) -> tuple[jax.Array, jax.Array]:
@@ -230,6 +238,6 @@ def intersects(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> jax.Arra
     boxes_overlap = jnp.all((low_a <= high_b) & (low_b <= high_a))
     return jax.lax.cond(
         boxes_overlap,
-        lambda: jnp.min(_candidate_depths(a, pose_a, b, pose_b)[0]) >= 0,
+        lambda: jnp.min(_candidate_depths(a, pose_a, b, pose_b)[0][0]) >= 0,
         lambda: jnp.array(False),
     )

@@ -6,6 +6,7 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = ["Pose", "pose2", "pose3"]
 
@@ -22,7 +23,8 @@ class Pose:
 
     def __post_init__(self):
         translation, rotation = self.translation, self.rotation
-        if not isinstance(translation, jax.Array) or not isinstance(rotation, jax.Array):
+        arrays = (jax.Array, np.ndarray)
+        if not isinstance(translation, arrays) or not isinstance(rotation, arrays):
             return  # pytree utilities rebuild poses around placeholders (axis specs, ArgInfo)
         dim = translation.shape[-1] if translation.ndim else None
         if dim not in (2, 3) or rotation.shape[-2:] != (dim, dim):

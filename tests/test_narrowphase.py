@@ -1,0 +1,857 @@
+"""Oracle and property tests for jaxsat.penetration and jaxsat.intersects.
+
+Every random pair is checked against the independent NumPy/SciPy oracle in `oracle.py`, which
+sees only the raw points the shapes were built from and rotations computed by SciPy. Pairs are
+evaluated in fixed-size batches with one cached `jax.jit(jax.vmap(...))` so that each size class
+(2D polygons padded to 8 vertices, 3D boxes, 3D hulls padded to 8 and to 20 vertices) compiles
+once per dtype.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import oracle
+import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+from scipy.optimize import minimize
+from scipy.spatial import ConvexHull
+
+import jaxsat
+
+BATCH = 128
+"""Every batched call uses this many pairs (the last chunk is padded), so nothing recompiles."""
+
+RELATIVE_TOLERANCE = {np.float64: 1e-9, np.float32: 1e-4}
+"""Depth tolerance relative to the shapes' size (the larger bounding radius)."""
+
+UNIT_TOLERANCE = {np.float64: 1e-12, np.float32: 1e-5}
+"""Tolerance on |normal| - 1."""
+
+NORMAL_TOLERANCE = {np.float64: 1e-7, np.float32: 1e-3}
+"""Tolerance on the normal itself, compared only where the optimal facet is unique by a margin."""
+
+DTYPES = [np.float64, np.float32]
+DTYPE_IDS = ["float64", "float32"]
+
+
+# --------------------------------------------------------------------------------------------
+# Random shape generation: every generator returns (raw local points, factory(dtype)).
+# --------------------------------------------------------------------------------------------
+
+
+def _random_convex_polygon(rng: np.random.Generator, scale: float):
+    """3 to 8 vertices on a random ellipse (always strictly convex), off-centre, or a box."""
+    kind = rng.integers(4)
+    if kind == 0:
+        half = rng.uniform(0.2, 1.0, 2) * scale
+        corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
+        return corners, lambda dtype: jaxsat.box(half.astype(dtype), max_vertices=8)
+    if kind == 1:
+        sides = int(rng.integers(3, 9))
+        radius = float(rng.uniform(0.3, 1.0)) * scale
+        angles = 2 * np.pi * np.arange(sides) / sides
+        corners = radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        return corners, lambda dtype: jaxsat.regular_polygon(sides, radius, 8, dtype=dtype)
+    count = int(rng.integers(3, 9))
+    # Sorted random angles with a minimum spacing, so no vertex is nearly straight.
+    while True:
+        angles = np.sort(rng.uniform(0, 2 * np.pi, count))
+        if np.min(np.diff(np.append(angles, angles[0] + 2 * np.pi))) > 0.2:
+            break
+    circle = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    stretch = np.diag(rng.uniform(0.3, 1.0, 2)) @ oracle.rotation_2d(rng.uniform(0, 2 * np.pi))
+    points = (circle @ stretch.T + rng.uniform(-0.3, 0.3, 2)) * scale
+    if kind == 3:
+        points = points[::-1]  # clockwise input
+    return points, lambda dtype: jaxsat.polygon(points.astype(dtype), 8)
+
+
+def _random_box(rng: np.random.Generator, scale: float, max_vertices=None):
+    half = rng.uniform(0.2, 1.0, 3) * scale
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    return signs * half, lambda dtype: jaxsat.box(half.astype(dtype), max_vertices, dtype=dtype)
+
+
+def _random_hull(rng: np.random.Generator, scale: float, count: int):
+    """Hull of `count` points: on a stretched sphere (all extreme) or Gaussian (some interior)."""
+    if rng.integers(4) == 0:
+        return _random_box(rng, scale, max_vertices=count)
+    points = rng.normal(size=(count, 3))
+    if rng.integers(2) == 0:
+        points /= np.linalg.norm(points, axis=1, keepdims=True)
+    else:
+        points /= np.max(np.linalg.norm(points, axis=1))
+    stretch = np.diag(rng.uniform(0.3, 1.0, 3)) @ oracle.rotation_3d(rng.normal(size=4))
+    points = (points @ stretch.T + rng.uniform(-0.3, 0.3, 3)) * scale
+    return points, lambda dtype: jaxsat.polyhedron(points.astype(dtype), count, dtype=dtype)
+
+
+GENERATORS = {
+    "poly8": (2, _random_convex_polygon),
+    "box": (3, _random_box),
+    "hull8": (3, functools.partial(_random_hull, count=8)),
+    "hull20": (3, functools.partial(_random_hull, count=20)),
+}
+
+
+@dataclasses.dataclass
+class Pool:
+    """A few shapes of one size class, stacked, with their raw points (rounded to the dtype)."""
+
+    dim: int
+    points: list[np.ndarray]
+    shapes: jaxsat.Polytope
+
+
+def make_pool(name: str, dtype, rng: np.random.Generator, scale: float = 1.0, size: int = 12):
+    dim, generate = GENERATORS[name]
+    points, shapes = [], []
+    for _ in range(size):
+        raw, factory = generate(rng, scale)
+        shape = factory(dtype)
+        assert shape.dtype == dtype
+        points.append(raw.astype(dtype).astype(np.float64))
+        shapes.append(shape)
+    return Pool(dim, points, jaxsat.stack(shapes))
+
+
+# --------------------------------------------------------------------------------------------
+# Pairs: indices into two pools and pose parameters; evaluation in fixed-size jitted batches.
+# --------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class Pairs:
+    pool_a: Pool
+    pool_b: Pool
+    index_a: np.ndarray
+    index_b: np.ndarray
+    params_a: tuple[np.ndarray, ...]
+    """2D: (x, y, angle) arrays; 3D: (translations (N, 3), quaternions (N, 4))."""
+    params_b: tuple[np.ndarray, ...]
+    dtype: type
+
+    @property
+    def dim(self) -> int:
+        return self.pool_a.dim
+
+    def __len__(self) -> int:
+        return len(self.index_a)
+
+    def replace(self, **changes) -> Pairs:
+        return dataclasses.replace(self, **changes)
+
+    def swapped(self) -> Pairs:
+        return Pairs(self.pool_b, self.pool_a, self.index_b, self.index_a, self.params_b,
+                     self.params_a, self.dtype)
+
+
+def random_params(dim: int, count: int, rng: np.random.Generator, dtype, spread: float = 2.0):
+    """Random pose parameters: positions in [-spread, spread], any rotation."""
+    if dim == 2:
+        x, y = rng.uniform(-spread, spread, (2, count))
+        return tuple(v.astype(dtype) for v in (x, y, rng.uniform(-np.pi, np.pi, count)))
+    quaternions = rng.normal(size=(count, 4)) * rng.uniform(0.5, 2.0, (count, 1))
+    return (rng.uniform(-spread, spread, (count, 3)).astype(dtype), quaternions.astype(dtype))
+
+
+def offset_params(dim: int, params, offsets: np.ndarray, dtype, rng: np.random.Generator):
+    """Pose parameters at params' positions plus `offsets` (N, dim), with fresh rotations."""
+    fresh = random_params(dim, len(offsets), rng, dtype)
+    if dim == 2:
+        return (params[0] + offsets[:, 0].astype(dtype), params[1] + offsets[:, 1].astype(dtype),
+                fresh[2])
+    return ((params[0] + offsets).astype(dtype), fresh[1])
+
+
+def random_pairs(pool_a: Pool, pool_b: Pool, count: int, rng: np.random.Generator, dtype,
+                 distance: tuple[float, float] = (0.0, 2.5), scale: float = 1.0) -> Pairs:
+    """Random pairs whose origins are `distance` * scale apart (uniform), any rotations."""
+    dim = pool_a.dim
+    params_a = random_params(dim, count, rng, dtype, spread=2.0 * scale)
+    directions = rng.normal(size=(count, dim))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    offsets = directions * rng.uniform(*distance, (count, 1)) * scale
+    params_b = offset_params(dim, params_a, offsets, dtype, rng)
+    return Pairs(pool_a, pool_b, rng.integers(len(pool_a.points), size=count),
+                 rng.integers(len(pool_b.points), size=count), params_a, params_b, dtype)
+
+
+def make_poses(dim: int, params) -> jaxsat.Pose:
+    """Batched poses from batched parameters (through the public constructors, vmapped)."""
+    params = tuple(jnp.asarray(p) for p in params)
+    return jax.vmap(jaxsat.pose2 if dim == 2 else jaxsat.pose3)(*params)
+
+
+def oracle_rotations(dim: int, params) -> np.ndarray:
+    if dim == 2:
+        return np.stack([oracle.rotation_2d(float(angle)) for angle in params[2]])
+    return np.stack([oracle.rotation_3d(q) for q in params[1]])
+
+
+def oracle_translations(dim: int, params) -> np.ndarray:
+    if dim == 2:
+        return np.stack([params[0], params[1]], axis=1).astype(np.float64)
+    return np.asarray(params[0], np.float64)
+
+
+def world_points(pairs: Pairs):
+    """(world A, world B) float64 point lists, from raw points and SciPy rotations."""
+    rot_a, rot_b = oracle_rotations(pairs.dim, pairs.params_a), oracle_rotations(pairs.dim,
+                                                                                 pairs.params_b)
+    t_a, t_b = oracle_translations(pairs.dim, pairs.params_a), oracle_translations(pairs.dim,
+                                                                                   pairs.params_b)
+    world_a = [oracle.to_world(pairs.pool_a.points[i], r, t)
+               for i, r, t in zip(pairs.index_a, rot_a, t_a, strict=True)]
+    world_b = [oracle.to_world(pairs.pool_b.points[i], r, t)
+               for i, r, t in zip(pairs.index_b, rot_b, t_b, strict=True)]
+    return world_a, world_b
+
+
+def _query(a, pose_a, b, pose_b):
+    return jaxsat.penetration(a, pose_a, b, pose_b), jaxsat.intersects(a, pose_a, b, pose_b)
+
+
+batched_query = jax.jit(jax.vmap(_query))
+"""One jitted function for every test: jit caches one executable per size class and dtype."""
+
+
+def take(tree, index):
+    return jax.tree.map(lambda leaf: leaf[index], tree)
+
+
+def evaluate(pairs: Pairs, function=batched_query):
+    """(depth, normal, intersects) as NumPy arrays, evaluated in chunks of exactly BATCH."""
+    count = len(pairs)
+    padded = np.resize(np.arange(count), -(-count // BATCH) * BATCH)
+    poses_a = make_poses(pairs.dim, pairs.params_a)
+    poses_b = make_poses(pairs.dim, pairs.params_b)
+    depths, normals, hits = [], [], []
+    for start in range(0, len(padded), BATCH):
+        chunk = padded[start:start + BATCH]
+        result, hit = function(take(pairs.pool_a.shapes, pairs.index_a[chunk]),
+                               take(poses_a, chunk),
+                               take(pairs.pool_b.shapes, pairs.index_b[chunk]),
+                               take(poses_b, chunk))
+        depths.append(np.asarray(result.depth))
+        normals.append(np.asarray(result.normal))
+        hits.append(np.asarray(hit))
+        assert result.depth.dtype == pairs.dtype and result.normal.dtype == pairs.dtype
+        assert hit.dtype == jnp.bool_
+    return (np.concatenate(depths)[:count], np.concatenate(normals)[:count],
+            np.concatenate(hits)[:count])
+
+
+def oracles(pairs: Pairs, tie_factor: float = 10.0):
+    world_a, world_b = world_points(pairs)
+    results = []
+    for a, b in zip(world_a, world_b, strict=True):
+        size = max(oracle.bounding_radius(a), oracle.bounding_radius(b))
+        results.append(oracle.evaluate(a, b, tie_factor * RELATIVE_TOLERANCE[pairs.dtype] * size))
+    return results, world_a, world_b
+
+
+def check_against_oracle(pairs: Pairs, outputs=None, references=None):
+    """Assert every documented property of (depth, normal, intersects) against the oracle.
+
+    For every pair, with tol = relative tolerance * size:
+      * depth and normal are finite and the normal has unit length;
+      * the normal certifies the depth: support_gap(normal) == depth;
+      * depth <= oracle facet depth (a minimum over a superset of the facet normals);
+      * overlap (oracle depth >= 0): depth == oracle depth (exact minimum translation distance);
+      * separation: -depth <= Euclidean distance (a gap on an axis is a lower bound);
+      * where the optimal facet is unique by a margin, the normal is the oracle's facet normal;
+      * intersects == (depth >= 0) and == (oracle depth >= 0) away from |depth| < tol.
+    Returns (depth, normal, hits, oracles) for further checks.
+    """
+    depth, normal, hits = evaluate(pairs) if outputs is None else outputs
+    if references is None:
+        references = oracles(pairs)
+    refs, world_a, world_b = references
+    rel = RELATIVE_TOLERANCE[pairs.dtype]
+    assert np.all(np.isfinite(depth)) and np.all(np.isfinite(normal))
+    np.testing.assert_allclose(np.linalg.norm(normal, axis=1), 1.0,
+                               atol=UNIT_TOLERANCE[pairs.dtype])
+    failures = []
+    for i, ref in enumerate(refs):
+        tol = rel * ref.size
+        d, n = float(depth[i]), normal[i].astype(np.float64)
+        gap = oracle.support_gap(n, world_a[i], world_b[i])
+        problems = []
+        if abs(gap - d) > tol:
+            problems.append(f"support gap of normal {gap!r} != depth")
+        if d > ref.depth + tol:
+            problems.append("depth above the oracle facet depth")
+        if ref.depth >= 0 and abs(d - ref.depth) > tol:
+            problems.append("overlap depth differs from the oracle")
+        if ref.depth < 0 and -d > ref.distance + tol:
+            problems.append(f"gap larger than the distance {ref.distance!r}")
+        if ref.depth > 0 and ref.normal_is_unique and np.max(np.abs(n - ref.normal)) > \
+                NORMAL_TOLERANCE[pairs.dtype]:
+            problems.append(f"normal differs from the oracle normal {ref.normal.tolist()}")
+        if abs(d) > tol and bool(hits[i]) != (d >= 0):
+            problems.append(f"intersects {bool(hits[i])} disagrees with depth")
+        if abs(ref.depth) > tol and bool(hits[i]) != (ref.depth >= 0):
+            problems.append(f"intersects {bool(hits[i])} disagrees with the oracle")
+        if problems:
+            failures.append(f"pair {i}: depth {d!r} normal {n.tolist()} oracle depth "
+                            f"{ref.depth!r} size {ref.size:.3g}: " + "; ".join(problems))
+    assert not failures, f"{len(failures)} of {len(refs)} pairs fail:\n" + "\n".join(failures[:10])
+    return depth, normal, hits, refs
+
+
+# --------------------------------------------------------------------------------------------
+# Fixtures: one pool per (size class, dtype), built once per module.
+# --------------------------------------------------------------------------------------------
+
+
+@functools.cache
+def pool(name: str, dtype, scale: float = 1.0, seed: int = 0) -> Pool:
+    return make_pool(name, dtype, np.random.default_rng([seed, 1 + len(name)]), scale)
+
+
+CLASS_PAIRS = [("poly8", "poly8"), ("box", "box"), ("hull8", "hull8"), ("hull20", "hull20")]
+CLASS_IDS = [f"{a}-{b}" for a, b in CLASS_PAIRS]
+
+
+@pytest.fixture(params=DTYPES, ids=DTYPE_IDS)
+def dtype(request):
+    return request.param
+
+
+@pytest.fixture(params=CLASS_PAIRS, ids=CLASS_IDS)
+def classes(request):
+    return request.param
+
+
+# --------------------------------------------------------------------------------------------
+# The oracle itself, on cases with known answers.
+# --------------------------------------------------------------------------------------------
+
+
+def test_oracle_on_known_cases():
+    square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)
+    overlap = oracle.evaluate(square, square + [1.5, 0.2])
+    assert overlap.depth == pytest.approx(0.5) and np.allclose(overlap.normal, [1, 0])
+    diagonal = oracle.evaluate(square, square + [3, 3])
+    assert diagonal.depth == pytest.approx(-1.0) and diagonal.distance == pytest.approx(2**0.5)
+    cube = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    corner = oracle.evaluate(cube, cube + [3, 3, 3])
+    assert corner.depth == pytest.approx(-1.0) and corner.distance == pytest.approx(3**0.5)
+    assert not corner.normal_is_unique
+    inside = oracle.evaluate(cube, 0.1 * cube + [0.5, 0.2, 0.0])
+    assert inside.depth == pytest.approx(0.6) and np.allclose(inside.normal, [1, 0, 0])
+    assert oracle.support_gap([1, 0, 0], cube, cube + [1.5, 0, 0]) == pytest.approx(0.5)
+
+
+def test_oracle_distance_matches_quadratic_programme():
+    """The exact point-to-hull distance agrees with a generic QP over convex combinations."""
+    rng = np.random.default_rng(7)
+    for dim in (2, 3):
+        for _ in range(5):
+            direction = rng.normal(size=dim)
+            points = rng.normal(size=(30, dim)) + 6 * direction / np.linalg.norm(direction)
+            hull = ConvexHull(points)
+
+            def squared(weights, points=points):
+                return float(np.sum((weights @ points) ** 2))
+
+            start = np.full(len(points), 1 / len(points))
+            solution = minimize(squared, start, method="SLSQP", bounds=[(0, 1)] * len(points),
+                                constraints=[{"type": "eq", "fun": lambda w: np.sum(w) - 1}],
+                                options={"ftol": 1e-14, "maxiter": 500})
+            distance = oracle.distance_to_hull(hull)
+            assert distance > 1.0  # the origin is outside
+            assert distance == pytest.approx(np.sqrt(solution.fun), rel=1e-5)
+
+
+# --------------------------------------------------------------------------------------------
+# Random pairs against the oracle.
+# --------------------------------------------------------------------------------------------
+
+
+def test_random_pairs(classes, dtype):
+    """Generic pairs from deep overlap to clear separation, any rotations."""
+    rng = np.random.default_rng([11, len(classes[0]), len(classes[1])])
+    pairs = random_pairs(pool(classes[0], dtype), pool(classes[1], dtype), 3 * BATCH, rng, dtype)
+    depth, _, _, refs = check_against_oracle(pairs)
+    overlapping = np.array([r.depth > 0 for r in refs])
+    # The generator really covers both regimes, including deep overlaps.
+    assert 0.2 < overlapping.mean() < 0.9
+    assert np.max(depth) > 0.5 * max(r.size for r in refs)
+
+
+def test_mixed_size_classes():
+    """a and b from different size classes (box vs padded hulls), in both orders."""
+    rng = np.random.default_rng(12)
+    pairs = random_pairs(pool("box", np.float64), pool("hull8", np.float64), 2 * BATCH, rng,
+                         np.float64)
+    check_against_oracle(pairs)
+    check_against_oracle(pairs.swapped())
+
+
+def _shallow(pairs: Pairs, refs, targets: np.ndarray) -> Pairs:
+    """Move each b along its oracle normal so that its oracle depth becomes `targets`."""
+    shift = np.array([(r.depth - t) * r.normal for r, t in zip(refs, targets, strict=True)])
+    if pairs.dim == 2:
+        x, y, angle = pairs.params_b
+        params_b = ((x + shift[:, 0]).astype(pairs.dtype), (y + shift[:, 1]).astype(pairs.dtype),
+                    angle)
+    else:
+        translation, quaternion = pairs.params_b
+        params_b = ((translation + shift).astype(pairs.dtype), quaternion)
+    return pairs.replace(params_b=params_b)
+
+
+def test_shallow_contacts(classes, dtype):
+    """|depth| < 1e-3: touching, barely overlapping and barely separated pairs.
+
+    Start from overlapping pairs (oracle depth d0 > 2e-3 size) and move b out along the oracle
+    normal n by d0 - target: every facet's support drops by at most that much, so the new depth
+    is exactly `target` (re-checked with the oracle)."""
+    rng = np.random.default_rng([13, len(classes[0])])
+    pairs = random_pairs(pool(classes[0], dtype), pool(classes[1], dtype), 3 * BATCH, rng, dtype,
+                         distance=(0.0, 1.0))
+    refs, _, _ = oracles(pairs)
+    deep = np.flatnonzero([r.depth > 2e-3 * r.size for r in refs])[:BATCH]
+    assert len(deep) == BATCH
+    pairs = pairs.replace(index_a=pairs.index_a[deep], index_b=pairs.index_b[deep],
+                          params_a=tuple(p[deep] for p in pairs.params_a),
+                          params_b=tuple(p[deep] for p in pairs.params_b))
+    refs = [refs[i] for i in deep]
+    targets = rng.choice([-1e-3, -1e-5, -1e-7, 0.0, 1e-7, 1e-5, 1e-3], len(pairs))
+    targets *= np.array([r.size for r in refs])
+    shallow = _shallow(pairs, refs, targets)
+    depth, _, _, new_refs = check_against_oracle(shallow)
+    sizes = np.array([r.size for r in new_refs])
+    new_depths = np.array([r.depth for r in new_refs])
+    # The construction worked: the oracle depths are the chosen small values (up to the
+    # rounding of the new translations to the dtype).
+    rounding = 1e-12 if dtype == np.float64 else 1e-6
+    np.testing.assert_allclose(new_depths, targets, atol=rounding * sizes.max())
+    assert np.all(np.abs(depth) <= (1e-3 + RELATIVE_TOLERANCE[dtype]) * sizes)
+
+
+def test_nested_shapes(dtype):
+    """One shape entirely inside the other (both orders): depth is the deepest escape."""
+    rng = np.random.default_rng(14)
+    big = pool("hull8", dtype, scale=4.0, seed=1)
+    small = pool("hull8", dtype, scale=0.25, seed=2)
+    pairs = random_pairs(big, small, BATCH, rng, dtype)
+    world_a, _ = world_points(pairs)
+    # Put b's origin near the centroid of a.
+    centres = np.array([a.mean(axis=0) for a in world_a]) + rng.uniform(-0.1, 0.1, (BATCH, 3))
+    pairs = pairs.replace(params_b=(centres.astype(dtype), pairs.params_b[1]))
+    depth, _, _, refs = check_against_oracle(pairs)
+    world_a, world_b = world_points(pairs)
+    contained = []
+    for a, b in zip(world_a, world_b, strict=True):
+        equations = ConvexHull(a).equations
+        contained.append(np.all(b @ equations[:, :3].T + equations[:, 3] < 0))
+    assert np.mean(contained) > 0.8  # the construction really nests most pairs
+    assert np.all(depth > 0)
+    check_against_oracle(pairs.swapped())
+
+
+@settings(max_examples=12)
+@given(exponent=st.floats(-3.0, 3.0), seed=st.integers(0, 2**31 - 1))
+@example(exponent=-3.0, seed=0)
+@example(exponent=-3.0, seed=1)
+@example(exponent=-3.0, seed=2)
+@example(exponent=-3.0, seed=3)
+@example(exponent=3.0, seed=0)
+@example(exponent=3.0, seed=1)
+@example(exponent=3.0, seed=2)
+@example(exponent=3.0, seed=3)
+def test_scales_from_milli_to_kilo(exponent, seed):
+    """Shapes and translations scaled together by 1e-3 .. 1e3: tolerances scale with size."""
+    scale = 10.0**exponent
+    rng = np.random.default_rng(seed)
+    dtype = DTYPES[seed % 2]
+    name = ("poly8", "box", "hull8", "hull20")[seed % 4]
+    shapes = make_pool(name, dtype, rng, scale=scale, size=4)
+    pairs = random_pairs(shapes, shapes, BATCH // 2, rng, dtype, scale=scale)
+    _, _, _, refs = check_against_oracle(pairs)
+    assert all(0.1 * scale < r.size < 3.0 * scale for r in refs)
+
+
+# --------------------------------------------------------------------------------------------
+# Contact types with analytic answers: two cubes (or squares) meeting along the x axis.
+# --------------------------------------------------------------------------------------------
+
+
+def _quaternion(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
+
+
+def _quaternion_product(p, q):
+    w1, x1, y1, z1 = p
+    w2, x2, y2, z2 = q
+    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+
+
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+# Rotating by atan(sqrt(2)) about (0, 1, -1)/sqrt(2) takes the corner (-1, -1, -1) to -sqrt(3) x.
+_CORNER_TO_MINUS_X = _quaternion([0, 1, -1], np.arctan(np.sqrt(2)))
+CONTACTS = {
+    # name: (quaternion a, quaternion b, reach of a along +x, reach of b along -x)
+    "face-face": (_IDENTITY, _quaternion([1, 0, 0], 0.3), 1.0, 1.0),
+    "edge-edge": (_quaternion([0, 0, 1], np.pi / 4), _quaternion([0, 1, 0], np.pi / 4),
+                  np.sqrt(2), np.sqrt(2)),
+    "vertex-face": (_IDENTITY, _CORNER_TO_MINUS_X, 1.0, np.sqrt(3)),
+    # The same rotation takes the corner (1, 1, 1) to +sqrt(3) x.
+    "face-vertex": (_CORNER_TO_MINUS_X, _IDENTITY, np.sqrt(3), 1.0),
+}
+
+
+@pytest.mark.parametrize("contact", list(CONTACTS))
+@pytest.mark.parametrize("padded", [False, True], ids=["box", "box-as-hull8"])
+def test_cube_contacts(contact, padded):
+    """Unit cubes touching face-face, edge-edge or vertex-face: depth d, normal +x, exactly.
+
+    Unpadded boxes use the few unique edge directions; boxes padded to the hull8 size class go
+    through the per-hull-edge path, so both edge-edge methods are checked."""
+    quaternion_a, quaternion_b, reach_a, reach_b = CONTACTS[contact]
+    assert np.allclose(oracle.rotation_3d(_CORNER_TO_MINUS_X) @ [-1, -1, -1], [-3**0.5, 0, 0])
+    depths = np.array([0.5, 0.1, 1e-3, 1e-6, 0.0, -1e-6, -1e-3, -0.5])
+    cube = jaxsat.box([1.0, 1.0, 1.0], 8 if padded else None)
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    count = len(depths)
+    cubes = Pool(3, [corners], jaxsat.stack([cube]))
+    pairs = Pairs(cubes, cubes, np.zeros(count, int), np.zeros(count, int),
+                  (np.zeros((count, 3)), np.tile(quaternion_a, (count, 1))),
+                  (np.array([[reach_a + reach_b - d, 0, 0] for d in depths]),
+                   np.tile(quaternion_b, (count, 1))), np.float64)
+    depth, normal, hits, _ = check_against_oracle(pairs)
+    np.testing.assert_allclose(depth, depths, atol=1e-12)
+    np.testing.assert_allclose(normal, np.tile([1.0, 0.0, 0.0], (count, 1)), atol=1e-9)
+    decided = depths != 0  # exact touching is at the mercy of rounding
+    np.testing.assert_array_equal(hits[decided], depths[decided] > 0)
+
+
+@pytest.mark.parametrize("contact", ["edge-edge", "vertex-face"])
+def test_cube_contacts_perturbed(contact):
+    """The same contacts with small random rotations: still exact against the oracle."""
+    rng = np.random.default_rng(15)
+    quaternion_a, quaternion_b, reach_a, reach_b = CONTACTS[contact]
+    count = BATCH
+    wobble = lambda: _quaternion(rng.normal(size=3), rng.uniform(0, 0.05))  # noqa: E731
+    q_a = np.array([_quaternion_product(wobble(), quaternion_a) for _ in range(count)])
+    q_b = np.array([_quaternion_product(wobble(), quaternion_b) for _ in range(count)])
+    offsets = np.zeros((count, 3))
+    offsets[:, 0] = reach_a + reach_b - rng.uniform(-0.1, 0.2, count)
+    offsets[:, 1:] = rng.uniform(-0.1, 0.1, (count, 2))
+    for padded in (None, 8):
+        cube = jaxsat.stack([jaxsat.box([1.0, 1.0, 1.0], padded)])
+        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+        pairs = Pairs(Pool(3, [corners], cube), Pool(3, [corners], cube), np.zeros(count, int),
+                      np.zeros(count, int), (np.zeros((count, 3)), q_a), (offsets, q_b),
+                      np.float64)
+        _, normal, _, _ = check_against_oracle(pairs)
+        assert np.all(normal[:, 0] > 0.9)  # still the contact along +x
+
+
+@pytest.mark.parametrize("rotated", [False, True], ids=["face-face", "vertex-face"])
+def test_square_contacts(rotated):
+    """2D: squares meeting edge to edge, or corner (square turned 45 degrees) to edge."""
+    depths = np.array([0.5, 1e-3, 1e-8, 0.0, -1e-8, -1e-3, -0.5])
+    count = len(depths)
+    angle = np.pi / 4 if rotated else 0.0
+    reach_b = np.sqrt(2) if rotated else 1.0
+    square = jaxsat.box([1.0, 1.0], max_vertices=8)
+    corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)
+    pool_ = Pool(2, [corners], jaxsat.stack([square]))
+    pairs = Pairs(pool_, pool_, np.zeros(count, int), np.zeros(count, int),
+                  (np.zeros(count), np.zeros(count), np.zeros(count)),
+                  (1.0 + reach_b - depths, np.zeros(count), np.full(count, angle)), np.float64)
+    depth, normal, hits, _ = check_against_oracle(pairs)
+    np.testing.assert_allclose(depth, depths, atol=1e-12)
+    np.testing.assert_allclose(normal, np.tile([1.0, 0.0], (count, 1)), atol=1e-9)
+    decided = depths != 0
+    np.testing.assert_array_equal(hits[decided], depths[decided] > 0)
+
+
+# --------------------------------------------------------------------------------------------
+# Invariances.
+# --------------------------------------------------------------------------------------------
+
+
+def test_swap_flips_normal_keeps_depth(classes, dtype):
+    rng = np.random.default_rng(16)
+    pairs = random_pairs(pool(classes[0], dtype), pool(classes[1], dtype), BATCH, rng, dtype)
+    depth, normal, hits = evaluate(pairs)
+    refs, _, _ = oracles(pairs)
+    depth_s, normal_s, hits_s = evaluate(pairs.swapped())
+    sizes = np.array([r.size for r in refs])
+    rel = RELATIVE_TOLERANCE[dtype]
+    np.testing.assert_array_less(np.abs(depth_s - depth), rel * sizes)
+    unique = np.array([r.normal_is_unique and r.depth > 0 for r in refs])
+    assert unique.mean() > 0.2
+    np.testing.assert_allclose(normal_s[unique], -normal[unique], atol=NORMAL_TOLERANCE[dtype])
+    decided = np.abs(depth) > rel * sizes
+    np.testing.assert_array_equal(hits_s[decided], hits[decided])
+
+
+def _compose(dim, motion, params, dtype):
+    """Parameters of motion * pose, computed with NumPy (not with jaxsat.Pose.compose)."""
+    if dim == 2:
+        shift, turn = motion
+        rotation = oracle.rotation_2d(turn)
+        position = np.stack([params[0], params[1]], axis=1) @ rotation.T + shift
+        return (position[:, 0].astype(dtype), position[:, 1].astype(dtype),
+                (params[2] + turn).astype(dtype))
+    shift, quaternion = motion
+    rotation = oracle.rotation_3d(quaternion)
+    quaternions = np.array([_quaternion_product(quaternion, q) for q in params[1]])
+    return ((params[0] @ rotation.T + shift).astype(dtype), quaternions.astype(dtype))
+
+
+@settings(max_examples=8)
+@given(data=st.data())
+def test_common_rigid_motion(data):
+    """Moving both shapes by one rigid motion keeps the depth and rotates the normal."""
+    name = data.draw(st.sampled_from(["poly8", "box", "hull8", "hull20"]), label="class")
+    dtype = data.draw(st.sampled_from(DTYPES), label="dtype")
+    dim = GENERATORS[name][0]
+    shift = np.array(data.draw(st.lists(st.floats(-10, 10), min_size=dim, max_size=dim)))
+    if dim == 2:
+        motion = (shift, data.draw(st.floats(-np.pi, np.pi), label="turn"))
+        rotation = oracle.rotation_2d(motion[1])
+    else:
+        quaternion = np.array(data.draw(st.lists(st.floats(-1, 1), min_size=4, max_size=4)))
+        if np.linalg.norm(quaternion) < 0.1:
+            quaternion = _IDENTITY
+        motion = (shift, quaternion)
+        rotation = oracle.rotation_3d(quaternion)
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31 - 1), label="seed"))
+    pairs = random_pairs(pool(name, dtype), pool(name, dtype), BATCH, rng, dtype)
+    depth, normal, hits = evaluate(pairs)
+    refs, _, _ = oracles(pairs)
+    moved = pairs.replace(params_a=_compose(dim, motion, pairs.params_a, dtype),
+                          params_b=_compose(dim, motion, pairs.params_b, dtype))
+    depth_m, normal_m, _ = evaluate(moved)
+    sizes = np.array([r.size for r in refs])
+    tol = RELATIVE_TOLERANCE[dtype] * sizes
+    np.testing.assert_array_less(np.abs(depth_m - depth), tol)
+    unique = np.array([r.normal_is_unique and r.depth > 0 for r in refs])
+    np.testing.assert_allclose(normal_m[unique], normal[unique] @ rotation.T,
+                               atol=NORMAL_TOLERANCE[dtype])
+
+
+single_query = jax.jit(_query)
+"""Unbatched jitted query, shared by the tests that call pairs one at a time."""
+
+
+@pytest.mark.parametrize(("name", "dtype"), [("poly8", np.float64), ("hull8", np.float64),
+                                             ("box", np.float32)])
+def test_vmap_matches_python_loop(name, dtype):
+    """Batched results equal single jitted calls pair by pair."""
+    rng = np.random.default_rng(17)
+    pairs = random_pairs(pool(name, dtype), pool(name, dtype), 12, rng, dtype)
+    depth, normal, hits = evaluate(pairs)
+    poses_a = make_poses(pairs.dim, pairs.params_a)
+    poses_b = make_poses(pairs.dim, pairs.params_b)
+    for i in range(len(pairs)):
+        result, hit = single_query(take(pairs.pool_a.shapes, pairs.index_a[i]), take(poses_a, i),
+                                   take(pairs.pool_b.shapes, pairs.index_b[i]), take(poses_b, i))
+        assert result.depth.shape == () and result.normal.shape == (pairs.dim,)
+        assert result.depth.dtype == dtype and result.normal.dtype == dtype
+        np.testing.assert_allclose(result.depth, depth[i], atol=RELATIVE_TOLERANCE[dtype])
+        np.testing.assert_allclose(result.normal, normal[i], atol=NORMAL_TOLERANCE[dtype])
+        assert hit.shape == () and bool(hit) == bool(hits[i])
+
+
+@pytest.mark.parametrize(("name", "dtype"), [("poly8", np.float64), ("box", np.float32)])
+def test_jit_and_eager_agree(name, dtype):
+    """The same pairs with and without jit (eager calls are slow: only a few pairs)."""
+    rng = np.random.default_rng(18)
+    pairs = random_pairs(pool(name, dtype), pool(name, dtype), 2, rng, dtype)
+    references = oracles(pairs)
+    poses_a = make_poses(pairs.dim, pairs.params_a)
+    poses_b = make_poses(pairs.dim, pairs.params_b)
+    outputs = {}
+    for variant, function in (("jit", single_query), ("eager", _query)):
+        results = [function(take(pairs.pool_a.shapes, pairs.index_a[i]), take(poses_a, i),
+                            take(pairs.pool_b.shapes, pairs.index_b[i]), take(poses_b, i))
+                   for i in range(len(pairs))]
+        for result, _ in results:
+            assert result.depth.dtype == dtype and result.normal.dtype == dtype
+        outputs[variant] = (np.array([r.depth for r, _ in results]),
+                            np.array([r.normal for r, _ in results]),
+                            np.array([bool(h) for _, h in results]))
+        check_against_oracle(pairs, outputs[variant], references)
+    chex.assert_trees_all_close(outputs["jit"][:2], outputs["eager"][:2],
+                                atol=10 * np.finfo(dtype).eps)
+    np.testing.assert_array_equal(outputs["jit"][2], outputs["eager"][2])
+
+
+def test_same_padded_sizes_do_not_recompile():
+    """New shapes and poses with the same padded sizes reuse the compiled kernel."""
+    traces = []
+
+    @jax.jit
+    def counted(a, pose_a, b, pose_b):
+        traces.append(1)
+        return jax.vmap(jaxsat.penetration)(a, pose_a, b, pose_b)
+
+    def call(shapes, seed):
+        rng = np.random.default_rng(seed)
+        pairs = random_pairs(shapes, shapes, 16, rng, np.float64)
+        result = counted(take(shapes.shapes, pairs.index_a), make_poses(2, pairs.params_a),
+                         take(shapes.shapes, pairs.index_b), make_poses(2, pairs.params_b))
+        check_against_oracle(pairs, (np.asarray(result.depth), np.asarray(result.normal),
+                                     np.asarray(result.depth) >= 0))
+
+    for seed in range(3):  # different polygons (3 to 8 vertices, padded to 8) and poses
+        call(make_pool("poly8", np.float64, np.random.default_rng(seed), size=4), seed)
+    assert len(traces) == 1
+    assert counted._cache_size() == 1
+    # A different padded size does trace again (so the counter does count).
+    bigger = jaxsat.stack([jaxsat.regular_polygon(12, 1.0)])
+    call(Pool(2, [np.asarray(bigger.vertices[0], np.float64)], bigger), 3)
+    assert len(traces) == 2
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
+@pytest.mark.parametrize("dim", [2, 3])
+def test_output_dtypes(dim, dtype):
+    """float32 inputs give float32 outputs, float64 give float64 (single calls)."""
+    shapes = pool("poly8" if dim == 2 else "box", dtype)
+    shape = take(shapes.shapes, 0)
+    assert shape.dtype == dtype
+    params = random_params(dim, 2, np.random.default_rng(0), dtype)
+    poses = make_poses(dim, params)
+    assert poses.translation.dtype == dtype and poses.rotation.dtype == dtype
+    result, hit = single_query(shape, take(poses, 0), shape, take(poses, 1))
+    assert result.depth.dtype == dtype and result.normal.dtype == dtype
+    assert hit.dtype == jnp.bool_
+
+
+@pytest.mark.parametrize("name", ["poly8", "box", "hull8", "hull20"])
+def test_identical_shapes_at_identical_poses(name):
+    """Each shape against itself at the same (random) pose: finite positive depth, unit normal."""
+    rng = np.random.default_rng(20)
+    shapes = pool(name, np.float64)
+    params = random_params(shapes.dim, BATCH, rng, np.float64)
+    index = rng.integers(len(shapes.points), size=BATCH)
+    pairs = Pairs(shapes, shapes, index, index, params, params, np.float64)
+    depth, normal, hits, refs = check_against_oracle(pairs)
+    assert np.all(depth > 0) and np.all(hits)
+
+
+@pytest.mark.parametrize("name", ["box", "hull8", "hull20"])
+def test_translated_copies(name):
+    """Each 3D shape against a translated copy of itself, both unrotated.
+
+    Every edge of a is then exactly parallel to an edge of b: a common situation (instanced
+    shapes on a grid) and a degenerate one for edge-edge axes, which must be skipped."""
+    rng = np.random.default_rng(21)
+    shapes = pool(name, np.float64)
+    index = rng.integers(len(shapes.points), size=BATCH)
+    identity = np.tile(_IDENTITY, (BATCH, 1))
+    offsets = rng.normal(size=(BATCH, 3)) * 0.4
+    pairs = Pairs(shapes, shapes, index, index, (np.zeros((BATCH, 3)), identity),
+                  (offsets, identity), np.float64)
+    check_against_oracle(pairs)
+
+
+@pytest.mark.parametrize("name", ["poly8", "box"])
+def test_depth_gradient_is_minus_normal(name):
+    """d depth / d translation_b = -normal and d depth / d translation_a = +normal.
+
+    depth = min over axes u of max(u.A) - min(u.B); translations do not move the axes, so
+    where the minimum is unique its derivative in b's translation is -u (envelope theorem).
+    The rotation parameters get finite, non-zero gradients."""
+    rng = np.random.default_rng(22)
+    shapes = pool(name, np.float64)
+    pairs = random_pairs(shapes, shapes, 32, rng, np.float64)
+    depth, normal, _, refs = check_against_oracle(pairs)
+    make_pose = jaxsat.pose2 if shapes.dim == 2 else jaxsat.pose3
+    count = len(pairs)
+
+    def depth_of(a, b, params_a, params_b):
+        return jaxsat.penetration(a, make_pose(*params_a), b, make_pose(*params_b)).depth
+
+    grads = jax.jit(jax.vmap(jax.grad(depth_of, argnums=(2, 3))))
+    grad_a, grad_b = grads(take(shapes.shapes, pairs.index_a), take(shapes.shapes, pairs.index_b),
+                           pairs.params_a, pairs.params_b)
+    for g in jax.tree.leaves((grad_a, grad_b)):
+        assert np.all(np.isfinite(g))
+    if shapes.dim == 2:
+        translation_a = np.stack(grad_a[:2], axis=1)
+        translation_b = np.stack(grad_b[:2], axis=1)
+        rotation_b = np.asarray(grad_b[2])[:, None]
+    else:
+        translation_a, translation_b = np.asarray(grad_a[0]), np.asarray(grad_b[0])
+        rotation_b = np.asarray(grad_b[1])
+    assert translation_a.shape == (count, shapes.dim)
+    unique = np.array([r.normal_is_unique for r in refs])
+    assert unique.mean() > 0.5
+    np.testing.assert_allclose(translation_b[unique], -normal[unique], atol=1e-9)
+    np.testing.assert_allclose(translation_a[unique], normal[unique], atol=1e-9)
+    assert np.all(np.linalg.norm(rotation_b[unique], axis=1) > 0)
+
+
+# --------------------------------------------------------------------------------------------
+# Misuse.
+# --------------------------------------------------------------------------------------------
+
+
+def _single_2d():
+    return jaxsat.box([1.0, 1.0]), jaxsat.pose2(0.0, 0.0, 0.0)
+
+
+def _single_3d():
+    return jaxsat.box([1.0, 1.0, 1.0]), jaxsat.pose3(np.zeros(3), np.array([1.0, 0, 0, 0]))
+
+
+@pytest.mark.parametrize("query", [jaxsat.penetration, jaxsat.intersects])
+def test_mismatched_dimensions_raise(query):
+    square, pose_2d = _single_2d()
+    cube, pose_3d = _single_3d()
+    with pytest.raises(ValueError, match="dimension"):
+        query(square, pose_3d, square, pose_3d)
+    with pytest.raises(ValueError, match="dimension"):
+        query(square, pose_2d, cube, pose_3d)
+    with pytest.raises(ValueError, match="dimension"):
+        query(cube, pose_3d, cube, pose_2d)
+    with pytest.raises(ValueError, match="dimension"):
+        jax.jit(query)(square, pose_2d, cube, pose_2d)
+
+
+@pytest.mark.parametrize("query", [jaxsat.penetration, jaxsat.intersects])
+def test_batched_inputs_without_vmap_raise(query):
+    cube, pose = _single_3d()
+    cubes = jaxsat.stack([cube, cube])
+    poses = jax.vmap(jaxsat.pose3)(np.zeros((2, 3)), np.tile([1.0, 0, 0, 0], (2, 1)))
+    with pytest.raises(ValueError, match="vmap"):
+        query(cubes, pose, cube, pose)
+    with pytest.raises(ValueError, match="vmap"):
+        query(cube, pose, cubes, pose)
+    with pytest.raises(ValueError, match="vmap"):
+        query(cube, poses, cube, pose)
+    with pytest.raises(ValueError, match="vmap"):
+        query(cube, pose, cube, poses)
+    with pytest.raises(ValueError, match="vmap"):
+        jax.vmap(query, in_axes=(0, 0, None, None))(cubes, poses, cubes, pose)
+    # Correct use of the same batched inputs works.
+    result = jax.jit(jax.vmap(query, in_axes=(0, 0, None, None)))(cubes, poses, cube, pose)
+    assert jax.tree.leaves(result)[0].shape[0] == 2
+
+
+@pytest.mark.parametrize("query", [jaxsat.penetration, jaxsat.intersects])
+def test_wrong_argument_types_raise(query):
+    cube, pose = _single_3d()
+    with pytest.raises(ValueError, match="Polytope"):
+        query(cube.vertices, pose, cube, pose)
+    with pytest.raises(ValueError, match="Pose"):
+        query(cube, pose, cube, (pose.translation, pose.rotation))
