@@ -25,11 +25,13 @@ def as_point_array(points, dim: int | None, name: str) -> np.ndarray:
     except (TypeError, ValueError) as error:
         raise ValueError(f"{name} must be a numeric array, got {type(points).__name__}") from error
     expected = "(N, 2) or (N, 3)" if dim is None else f"(N, {dim})"
-    if array.ndim != 2 or (dim is not None and array.shape[1] != dim) or array.shape[1] not in (2, 3):
+    wrong_dim = dim is not None and array.ndim == 2 and array.shape[1] != dim
+    if array.ndim != 2 or wrong_dim or array.shape[1] not in (2, 3):
         raise ValueError(f"{name} must have shape {expected}, got {array.shape}")
     if not np.all(np.isfinite(array)):
         bad = np.argwhere(~np.isfinite(array))[0]
-        raise ValueError(f"{name} contains NaN or inf (first at index {tuple(int(i) for i in bad)})")
+        index = tuple(int(i) for i in bad)
+        raise ValueError(f"{name} contains NaN or inf (first at index {index})")
     return array
 
 
@@ -87,10 +89,12 @@ def convex_polygon(vertices: np.ndarray) -> np.ndarray:
         self-intersecting polygon.
     """
     ring = vertices[np.any(vertices != np.roll(vertices, 1, axis=0), axis=1)]
-    if len(distinct_points(ring)) < 3:
-        raise ValueError(f"a polygon needs at least 3 distinct vertices, got {len(distinct_points(ring))}")
+    distinct = len(distinct_points(ring))
+    if distinct < 3:
+        raise ValueError(f"a polygon needs at least 3 distinct vertices, got {distinct}")
     tolerance = tolerance_for(ring)
-    signed_area = 0.5 * np.sum(ring[:, 0] * np.roll(ring[:, 1], -1) - np.roll(ring[:, 0], -1) * ring[:, 1])
+    following = np.roll(ring, -1, axis=0)
+    signed_area = 0.5 * np.sum(ring[:, 0] * following[:, 1] - following[:, 0] * ring[:, 1])
     if abs(signed_area) <= tolerance * max(float(np.max(np.ptp(ring, axis=0))), tolerance):
         centred = ring - ring.mean(axis=0)
         if np.linalg.svd(centred, compute_uv=False)[1] <= tolerance * np.sqrt(len(ring)):
@@ -166,7 +170,7 @@ def convex_hull_3d(points: np.ndarray) -> Hull3D:
     # A point taken in early can end up inside a face or an edge once later points arrive.
     # True corners touch at least 3 faces; rebuilding from those alone drops the others.
     faces_at = [set() for _ in range(len(hull.vertices))]
-    for (start, end), faces in zip(hull.edges, hull.edge_faces):
+    for (start, end), faces in zip(hull.edges, hull.edge_faces, strict=False):
         faces_at[start].update(faces.tolist())
         faces_at[end].update(faces.tolist())
     corners = np.array([len(faces) >= 3 for faces in faces_at])
@@ -207,8 +211,8 @@ def _incremental_hull(points: np.ndarray, simplex: list[int], tolerance: float) 
         visible = normals @ points[index] - offsets > tolerance
         if not np.any(visible):
             continue
-        horizon = _horizon_edges([t for t, v in zip(triangles, visible) if v])
-        triangles = [t for t, v in zip(triangles, visible) if not v]
+        horizon = _horizon_edges([t for t, v in zip(triangles, visible, strict=False) if v])
+        triangles = [t for t, v in zip(triangles, visible, strict=False) if not v]
         triangles += [[a, b, index] for a, b in horizon]
     return np.array(triangles)
 
@@ -240,7 +244,7 @@ def _merge_coplanar(points: np.ndarray, triangles: np.ndarray) -> Hull3D:
     normals, _ = _triangle_planes(vertices, triangles)
     face_of_triangle, face_normals = _cluster_normals(vertices, triangles, normals)
     edge_faces: dict[tuple[int, int], list[int]] = {}
-    for triangle, face in zip(triangles, face_of_triangle):
+    for triangle, face in zip(triangles, face_of_triangle, strict=False):
         for k in range(3):
             a, b = int(triangle[k]), int(triangle[(k + 1) % 3])
             edge_faces.setdefault((min(a, b), max(a, b)), []).append(int(face))

@@ -41,10 +41,11 @@ def _check_pair(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> None:
                               ("pose_a", pose_a, Pose), ("pose_b", pose_b, Pose)):
         if not isinstance(value, kind):
             raise ValueError(f"{name} must be a jaxsat.{kind.__name__}, got {type(value).__name__}")
-    if a.batch_shape or b.batch_shape or pose_a.translation.ndim != 1 or pose_b.translation.ndim != 1:
+    pose_a_batch, pose_b_batch = pose_a.translation.shape[:-1], pose_b.translation.shape[:-1]
+    if a.batch_shape or b.batch_shape or pose_a_batch or pose_b_batch:
         raise ValueError("queries take one pair; batch them with jax.vmap (got batched inputs: "
-                         f"a {a.batch_shape}, b {b.batch_shape}, pose_a "
-                         f"{pose_a.translation.shape[:-1]}, pose_b {pose_b.translation.shape[:-1]})")
+                         f"a {a.batch_shape}, b {b.batch_shape}, pose_a {pose_a_batch}, "
+                         f"pose_b {pose_b_batch})")
     dims = {a.dim, b.dim, pose_a.dim, pose_b.dim}
     if len(dims) != 1:
         raise ValueError(f"a, pose_a, b, pose_b must share one dimension, got {a.dim}D shape a, "

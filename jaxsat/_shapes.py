@@ -64,7 +64,8 @@ class Polytope:
 def _float_dtype(source: np.ndarray | None, dtype) -> jnp.dtype:
     """The JAX dtype a constructor stores: `dtype`, else the input's float dtype, else default."""
     if dtype is None:
-        dtype = source.dtype if source is not None and np.issubdtype(source.dtype, np.floating) else float
+        is_float = source is not None and np.issubdtype(source.dtype, np.floating)
+        dtype = source.dtype if is_float else float
     dtype = jnp.dtype(dtype)
     if not jnp.issubdtype(dtype, jnp.floating):
         raise ValueError(f"dtype must be a floating dtype, got {dtype}")
@@ -161,13 +162,15 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None) -> Polyto
     hull = geometry.convex_hull_3d(cloud)
     normals = geometry.unique_directions(hull.face_normals)
     segments = hull.vertices[hull.edges[:, 1]] - hull.vertices[hull.edges[:, 0]]
-    directions = geometry.unique_directions(segments / np.linalg.norm(segments, axis=1, keepdims=True))
+    lengths = np.linalg.norm(segments, axis=1, keepdims=True)
+    directions = geometry.unique_directions(segments / lengths)
     size = _check_max_vertices(max_vertices, len(hull.vertices))
     sizes = (size, len(normals), len(directions), len(hull.edges))
     if max_vertices is not None:
         sizes = (size, max(2 * size - 4, 1), max(3 * size - 6, 1), max(3 * size - 6, 1))
     return _build(hull.vertices, normals, directions, hull.edges,
-                  hull.face_normals[hull.edge_faces], sizes, _float_dtype(np.asarray(points), dtype))
+                  hull.face_normals[hull.edge_faces], sizes,
+                  _float_dtype(np.asarray(points), dtype))
 
 
 def box(half_extents, max_vertices: int | None = None, *, dtype=None) -> Polytope:
@@ -253,6 +256,6 @@ def stack(shapes: Sequence[Polytope]) -> Polytope:
     dtypes = {shape.dtype for shape in shapes}
     if len(dtypes) > 1:
         raise ValueError(f"stack cannot mix dtypes, got {sorted(str(d) for d in dtypes)}")
-    sizes = tuple(max(column) for column in zip(*(_sizes(shape) for shape in shapes)))
+    sizes = tuple(max(column) for column in zip(*(_sizes(shape) for shape in shapes), strict=False))
     padded = [_pad_polytope(shape, sizes) for shape in shapes]
     return jax.tree.map(lambda *fields: jnp.stack(fields), *padded)
