@@ -52,8 +52,11 @@ def _parallel(u: np.ndarray, v: np.ndarray, angle_tolerance: float) -> bool:
 
     The sine (norm of the cross product, or 2D determinant) resolves tiny angles, unlike
     1 - |cos|, which float64 rounds to zero below about 1e-8 radians."""
-    sine = abs(u[0] * v[1] - u[1] * v[0]) if len(u) == 2 else float(np.linalg.norm(np.cross(u, v)))
-    return sine <= angle_tolerance
+    if len(u) == 2:
+        return abs(u[0] * v[1] - u[1] * v[0]) <= angle_tolerance
+    # Plain float arithmetic: np.cross on 3-vectors costs more than the whole test.
+    x, y, z = u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]
+    return x * x + y * y + z * z <= angle_tolerance * angle_tolerance
 
 
 def unique_directions(directions: np.ndarray, angle_tolerance: float = 1e-12) -> np.ndarray:
