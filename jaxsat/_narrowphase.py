@@ -14,6 +14,7 @@ a's own projections on its face normals are precomputed constants.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -59,7 +60,30 @@ def _common_dtype(a, pose_a, b, pose_b) -> jnp.dtype:
 def _relative_pose(pose_a: Pose, pose_b: Pose) -> tuple[jax.Array, jax.Array]:
     """(rotation, translation) mapping b's local coordinates into a's local frame."""
     rotation_a_t = pose_a.rotation.T
-    return rotation_a_t @ pose_b.rotation, rotation_a_t @ (pose_b.translation - pose_a.translation)
+    return (_project(rotation_a_t, pose_b.rotation.T),
+            _rotate(rotation_a_t, pose_b.translation - pose_a.translation))
+
+
+def _project(axes, points):
+    """(C, D) axes . (V, D) points -> (C, V), spelled out so XLA fuses it (no dot_general)."""
+    return sum(axes[:, None, k] * points[None, :, k] for k in range(axes.shape[-1]))
+
+
+def _extremes(axes, points):
+    """Min and max over points of axes . point, (C,) each: a loop over the few vertices keeps
+    every step elementwise, which XLA fuses (a reduce op would be a separate pass)."""
+    low = high = None
+    for v in range(points.shape[0]):
+        p = sum(axes[:, k] * points[v, k] for k in range(axes.shape[-1]))
+        low = p if low is None else jnp.minimum(low, p)
+        high = p if high is None else jnp.maximum(high, p)
+    return low, high
+
+
+def _rotate(rotation, points):
+    """rotation @ p for (..., D) points, spelled out so XLA fuses it."""
+    return jnp.stack([sum(rotation[r, k] * points[..., k] for k in range(points.shape[-1]))
+                      for r in range(rotation.shape[0])], axis=-1)
 
 
 def _interval_depths(a_min, a_max, b_min, b_max, normals):
@@ -72,13 +96,13 @@ def _face_axes(a: Polytope, b_vertices_in_a, b: Polytope, a_vertices_in_b, rotat
     """Candidates from both shapes' face normals, each tested against the other's vertices.
 
     Returns (depths (4F,), axes (4F, D) in a's frame)."""
-    b_on_a = b_vertices_in_a @ a.face_normals.T
+    b_min, b_max = _extremes(a.face_normals, b_vertices_in_a)
     depths_a, axes_a = _interval_depths(a.face_extents[:, 0], a.face_extents[:, 1],
-                                        b_on_a.min(axis=0), b_on_a.max(axis=0), a.face_normals)
-    a_on_b = a_vertices_in_b @ b.face_normals.T
-    depths_b, axes_b = _interval_depths(a_on_b.min(axis=0), a_on_b.max(axis=0),
+                                        b_min, b_max, a.face_normals)
+    a_min, a_max = _extremes(b.face_normals, a_vertices_in_b)
+    depths_b, axes_b = _interval_depths(a_min, a_max,
                                         b.face_extents[:, 0], b.face_extents[:, 1],
-                                        b.face_normals @ rotation.T)
+                                        _rotate(rotation, b.face_normals))
     return jnp.concatenate([depths_a, depths_b]), jnp.concatenate([axes_a, axes_b])
 
 
@@ -96,13 +120,12 @@ def _edge_axes_by_projection(a: Polytope, b: Polytope, b_vertices_in_a, rotation
 
     Cheapest when shapes have few unique edge directions (boxes: 3 x 3 axes).
     Returns (depths (2 E_a E_b,), axes (2 E_a E_b, 3) in a's frame)."""
-    b_edges = b.edge_directions @ rotation.T
+    b_edges = _rotate(rotation, b.edge_directions)
     crosses = jnp.cross(a.edge_directions[:, None, :], b_edges[None, :, :]).reshape(-1, 3)
     eps = jnp.finfo(crosses.dtype).eps
     axes, valid = _safe_normalize(crosses, eps * eps)
-    a_proj, b_proj = a.vertices @ axes.T, b_vertices_in_a @ axes.T
-    depths, signed_axes = _interval_depths(a_proj.min(0), a_proj.max(0), b_proj.min(0),
-                                           b_proj.max(0), axes)
+    depths, signed_axes = _interval_depths(*_extremes(axes, a.vertices),
+                                           *_extremes(axes, b_vertices_in_a), axes)
     valid = jnp.concatenate([valid, valid])
     return jnp.where(valid, depths, jnp.inf), signed_axes
 
@@ -112,8 +135,8 @@ def _hull_edge_frames(shape: Polytope, rotation=None, translation=None):
     points = shape.vertices[shape.edge_endpoints[:, 0]]
     normals = shape.edge_face_normals
     if rotation is not None:
-        points = points @ rotation.T + translation
-        normals = normals @ rotation.T
+        points = _rotate(rotation, points) + translation
+        normals = _rotate(rotation, normals)
     first, second = normals[:, 0], normals[:, 1]
     directions, _ = _safe_normalize(jnp.cross(second, first), 0.0)
     return points, directions, first, second
@@ -130,29 +153,35 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     Returns (depths (K_a K_b,), what `_gauss_map_axis` needs to build a winner's axis)."""
     points_a, dir_a, na1, na2 = _hull_edge_frames(a)
     points_b, dir_b, nb1, nb2 = _hull_edge_frames(b, rotation, translation)
-    cba, dba = -(dir_a @ nb1.T), -(dir_a @ nb2.T)
-    adc, bdc = na1 @ dir_b.T, na2 @ dir_b.T
+    pairwise = lambda x, y: sum(x.T[k][:, None] * y.T[k][None, :] for k in range(3))  # noqa: E731
+    cba, dba = -pairwise(dir_a, nb1), -pairwise(dir_a, nb2)
+    adc, bdc = pairwise(na1, dir_b), pairwise(na2, dir_b)
     minkowski_face = (cba * dba < 0) & (adc * bdc < 0) & (cba * bdc > 0)
-    crosses = jnp.cross(dir_a[:, None, :], dir_b[None, :, :])
     # |e_a x e_b| from the cross product itself: 1 - cos^2 rounds (near-)parallel edges to
-    # noise, and noise must not pass for a Minkowski face.
-    sine_squared = jnp.sum(crosses * crosses, axis=-1)
-    min_sine = 1000 * jnp.finfo(crosses.dtype).eps
+    # noise, and noise must not pass for a Minkowski face. Components stay separate arrays so
+    # that XLA fuses them instead of materialising a (K_a, K_b, 3) stack.
+    ax, ay, az = (dir_a.T[k][:, None] for k in range(3))
+    bx, by, bz = (dir_b.T[k][None, :] for k in range(3))
+    sine_squared = (ay * bz - az * by) ** 2 + (az * bx - ax * bz) ** 2 + (ax * by - ay * bx) ** 2
+    min_sine = 1000 * jnp.finfo(sine_squared.dtype).eps
     valid = minkowski_face & (sine_squared > min_sine * min_sine)
     # The Gauss-map arcs fix the orientation: the axis e_a x e_b points out of a iff BDC > 0.
-    orientation = jnp.where(bdc > 0, 1.0, -1.0).astype(crosses.dtype)
-    offsets = points_a[:, None, :] - points_b[None, :, :]
+    orientation = jnp.where(bdc > 0, 1.0, -1.0).astype(sine_squared.dtype)
     inverse_sine = jax.lax.rsqrt(jnp.where(valid, sine_squared, 1.0))
-    separations = jnp.sum(crosses * offsets, axis=-1) * orientation * inverse_sine
+    moment_a, moment_b = jnp.cross(dir_a, points_a), jnp.cross(dir_b, points_b)
+    numerator = -pairwise(moment_a, dir_b) - pairwise(dir_a, moment_b)
+    separations = numerator * orientation * inverse_sine
     depths = jnp.where(valid, separations, jnp.inf).reshape(-1)
-    return depths, (dir_a, dir_b, orientation.reshape(-1))
+    return depths, (dir_a, dir_b, na2)
 
 
-def _gauss_map_axis(index, dir_a, dir_b, orientation):
-    """The unit axis of flattened edge pair `index`, built only for the winner."""
+def _gauss_map_axis(index, dir_a, dir_b, normals_a):
+    """The unit axis of flattened edge pair `index`, built only for the winner (its sign is
+    the orientation rule of `_edge_axes_by_gauss_map`, BDC > 0)."""
     row, col = jnp.divmod(index, dir_b.shape[0])
     crossed = jnp.cross(dir_a[row], dir_b[col])
-    return orientation[index] * _safe_normalize(crossed, 0.0)[0]
+    sign = jnp.where(jnp.dot(normals_a[row], dir_b[col]) > 0, 1.0, -1.0)
+    return sign * _safe_normalize(crossed, 0.0)[0]
 
 
 def _use_gauss_map(a: Polytope, b: Polytope) -> bool:
@@ -163,29 +192,54 @@ def _use_gauss_map(a: Polytope, b: Polytope) -> bool:
     return gauss_map_cost < projection_cost
 
 
-def _candidate_depths(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
-    """All candidate depths (C,) of one query and a function from a candidate's index to its
-    unit axis in a's frame (so only the winner's axis is built where that is costly), plus b's
-    vertices in a's frame."""
+def _candidate_groups(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
+    """The candidate axes of one query, in groups of (depths (C,), axis_of), plus b's vertices
+    in a's frame. `axis_of` maps an index of the group to its unit axis in a's frame, so that
+    a costly group builds only its winner's axis; groups stay apart because concatenating
+    them would make XLA materialise every depth."""
     rotation, translation = _relative_pose(pose_a, pose_b)
-    b_vertices_in_a = b.vertices @ rotation.T + translation
-    a_vertices_in_b = (a.vertices - translation) @ rotation
-    depths, axes = _face_axes(a, b_vertices_in_a, b, a_vertices_in_b, rotation)
+    b_vertices_in_a = _rotate(rotation, b.vertices) + translation
+    a_vertices_in_b = _rotate(rotation.T, a.vertices - translation)
+    face_depths, face_axes = _face_axes(a, b_vertices_in_a, b, a_vertices_in_b, rotation)
+    groups = [(face_depths, lambda index: face_axes[index])]
     if a.dim == 3 and _use_gauss_map(a, b):
         edge_depths, edge_data = _edge_axes_by_gauss_map(a, b, rotation, translation)
-        num_face_axes = depths.shape[0]
-
-        def axis_of(index):
-            edge_axis = _gauss_map_axis(jnp.maximum(index - num_face_axes, 0), *edge_data)
-            return jnp.where(index < num_face_axes, axes[jnp.minimum(index, num_face_axes - 1)],
-                             edge_axis)
-
-        return (jnp.concatenate([depths, edge_depths]), axis_of), b_vertices_in_a
-    if a.dim == 3:
+        groups.append((edge_depths, lambda index: _gauss_map_axis(index, *edge_data)))
+    elif a.dim == 3:
         edge_depths, edge_axes = _edge_axes_by_projection(a, b, b_vertices_in_a, rotation)
-        depths = jnp.concatenate([depths, edge_depths])
-        axes = jnp.concatenate([axes, edge_axes])
-    return (depths, lambda index: axes[index]), b_vertices_in_a
+        groups.append((edge_depths, lambda index: edge_axes[index]))
+    return groups, b_vertices_in_a
+
+
+def _smallest(depths: jax.Array) -> jax.Array:
+    return jnp.min(depths)
+
+
+def _index_of_smallest(depths: jax.Array) -> jax.Array:
+    """jnp.argmin(depths), for long `depths` as two plain reductions: XLA's CPU argmin (a
+    variadic reduce) took 60% of a 20-vertex hull query. The barrier makes both reductions
+    read one materialised copy: if XLA recomputed `depths` inside each fused reduction, their
+    roundings could differ and no entry would equal the minimum. For short groups the
+    materialisation costs more than it saves, so they keep jnp.argmin."""
+    if depths.shape[0] < 256:
+        return jnp.argmin(depths)
+    depths = jax.lax.optimization_barrier(depths)
+    positions = jnp.arange(depths.shape[0])
+    return jnp.min(jnp.where(depths == jnp.min(depths), positions, depths.shape[0] - 1))
+
+
+def _best_axis(groups) -> jax.Array:
+    """The unit axis (in a's frame) of the smallest depth over all groups."""
+    best_depth, best_axis = None, None
+    for depths, axis_of in groups:
+        depth, axis = _smallest(depths), axis_of(_index_of_smallest(depths))
+        if best_depth is None:
+            best_depth, best_axis = depth, axis
+        else:
+            better = depth < best_depth
+            best_depth = jnp.where(better, depth, best_depth)
+            best_axis = jnp.where(better, axis, best_axis)
+    return best_axis
 
 
 def _cast_pair(a, pose_a, b, pose_b):
@@ -213,17 +267,23 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> Penetra
     """
     _check_pair(a, pose_a, b, pose_b)
     a, pose_a, b, pose_b = _cast_pair(a, pose_a, b, pose_b)
-    (depths, axis_of), b_vertices_in_a = _candidate_depths(a, pose_a, b, pose_b)
-    axis = axis_of(jnp.argmin(depths))
+    groups, b_vertices_in_a = _candidate_groups(a, pose_a, b, pose_b)
+    axis = _best_axis(groups)
     # The winner's depth is measured again by projecting both shapes on its unit axis, so the
     # depth is exactly the one its normal gives (the edge-edge shortcut loses float32 digits).
-    depth = jnp.max(a.vertices @ axis) - jnp.min(b_vertices_in_a @ axis)
-    return Penetration(depth=depth, normal=pose_a.rotation @ axis)
+    _, a_high = _extremes(axis[None], a.vertices)
+    b_low, _ = _extremes(axis[None], b_vertices_in_a)
+    return Penetration(depth=a_high[0] - b_low[0], normal=_rotate(pose_a.rotation, axis))
 
 
 def _world_aabb(shape: Polytope, pose: Pose) -> tuple[jax.Array, jax.Array]:
     world = pose.apply(shape.vertices)
     return world.min(axis=0), world.max(axis=0)
+
+
+def _min_depth(a, pose_a, b, pose_b) -> jax.Array:
+    groups, _ = _candidate_groups(a, pose_a, b, pose_b)
+    return functools.reduce(jnp.minimum, [jnp.min(depths) for depths, _ in groups])
 
 
 def intersects(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> jax.Array:
@@ -239,6 +299,6 @@ def intersects(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> jax.Arra
     boxes_overlap = jnp.all((low_a <= high_b) & (low_b <= high_a))
     return jax.lax.cond(
         boxes_overlap,
-        lambda: jnp.min(_candidate_depths(a, pose_a, b, pose_b)[0][0]) >= 0,
+        lambda: _min_depth(a, pose_a, b, pose_b) >= 0,
         lambda: jnp.array(False),
     )
