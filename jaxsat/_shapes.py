@@ -213,24 +213,29 @@ def _sizes(shape: Polytope) -> tuple[int, int, int, int]:
             shape.edge_directions.shape[0], shape.edge_endpoints.shape[0])
 
 
-def _pad_polytope(shape: Polytope, sizes: tuple[int, int, int, int]) -> Polytope:
-    """Pad every field of an unbatched shape to `sizes` = (V, F, E, K), repeating entry 0."""
-    def pad(field: jax.Array, size: int) -> jax.Array:
-        extra = size - field.shape[0]
-        if extra == 0 or field.shape[0] == 0:
-            return field if extra == 0 else jnp.zeros((size, *field.shape[1:]), field.dtype)
-        filler = jnp.zeros_like(field[:1]) if field.dtype == jnp.bool_ else field[:1]
-        return jnp.concatenate([field, jnp.repeat(filler, extra, axis=0)])
+_FIELD_SIZE_INDEX = {
+    "vertices": 0, "vertex_mask": 0, "face_normals": 1, "face_extents": 1, "face_mask": 1,
+    "edge_directions": 2, "edge_mask": 2, "edge_endpoints": 3, "edge_face_normals": 3,
+    "hull_edge_mask": 3,
+}
+"""Which entry of the padded sizes (V, F, E, K) each Polytope field's first axis follows."""
 
-    size_of = {"vertex": sizes[0], "face": sizes[1], "edge_dir": sizes[2], "hull": sizes[3]}
-    groups = {
-        "vertices": "vertex", "vertex_mask": "vertex", "face_normals": "face",
-        "face_extents": "face", "face_mask": "face", "edge_directions": "edge_dir",
-        "edge_mask": "edge_dir", "edge_endpoints": "hull", "edge_face_normals": "hull",
-        "hull_edge_mask": "hull",
-    }
-    return Polytope(**{name: pad(getattr(shape, name), size_of[group])
-                       for name, group in groups.items()})
+
+def _padded_fields(shape: Polytope, sizes: tuple[int, int, int, int]) -> dict[str, np.ndarray]:
+    """Every field of an unbatched shape as NumPy, padded to `sizes` = (V, F, E, K).
+
+    Padding repeats entry 0 and masks pad with False, as in the constructors. NumPy keeps
+    this fast: eager jnp ops made stacking 256 boxes take 2 s."""
+    fields = {}
+    for name, size_index in _FIELD_SIZE_INDEX.items():
+        field, size = np.asarray(getattr(shape, name)), sizes[size_index]
+        if field.dtype == bool:
+            fields[name] = np.concatenate([field, np.zeros(size - len(field), bool)])
+        elif len(field) == 0:
+            fields[name] = np.zeros((size, *field.shape[1:]), field.dtype)
+        else:
+            fields[name] = _pad_rows(field, size, name)[0]
+    return fields
 
 
 def stack(shapes: Sequence[Polytope]) -> Polytope:
@@ -256,6 +261,7 @@ def stack(shapes: Sequence[Polytope]) -> Polytope:
     dtypes = {shape.dtype for shape in shapes}
     if len(dtypes) > 1:
         raise ValueError(f"stack cannot mix dtypes, got {sorted(str(d) for d in dtypes)}")
-    sizes = tuple(max(column) for column in zip(*(_sizes(shape) for shape in shapes), strict=False))
-    padded = [_pad_polytope(shape, sizes) for shape in shapes]
-    return jax.tree.map(lambda *fields: jnp.stack(fields), *padded)
+    sizes = tuple(max(column) for column in zip(*map(_sizes, shapes), strict=True))
+    padded = [_padded_fields(shape, sizes) for shape in shapes]
+    return Polytope(**{name: jnp.asarray(np.stack([fields[name] for fields in padded]))
+                       for name in _FIELD_SIZE_INDEX})
