@@ -87,15 +87,15 @@ def _rotate(rotation, points):
 
 
 def _interval_depths(a_min, a_max, b_min, b_max, normals):
-    """Depths and signed axes for both senses of each axis (b pushed along +n, or along -n)."""
-    depths = jnp.concatenate([a_max - b_min, b_max - a_min])
-    return depths, jnp.concatenate([normals, -normals])
+    """The better sense of each axis: depth min(b pushed along +n, along -n), and that axis."""
+    plus, minus = a_max - b_min, b_max - a_min
+    return jnp.minimum(plus, minus), jnp.where((plus <= minus)[:, None], normals, -normals)
 
 
 def _face_axes(a: Polytope, b_vertices_in_a, b: Polytope, a_vertices_in_b, rotation):
     """Candidates from both shapes' face normals, each tested against the other's vertices.
 
-    Returns (depths (4F,), axes (4F, D) in a's frame)."""
+    Returns (depths (F_a + F_b,), signed axes (F_a + F_b, D) in a's frame)."""
     b_min, b_max = _extremes(a.face_normals, b_vertices_in_a)
     depths_a, axes_a = _interval_depths(a.face_extents[:, 0], a.face_extents[:, 1],
                                         b_min, b_max, a.face_normals)
@@ -119,14 +119,13 @@ def _edge_axes_by_projection(a: Polytope, b: Polytope, b_vertices_in_a, rotation
     """Edge-edge candidates for every pair of unique edge directions, by full projection.
 
     Cheapest when shapes have few unique edge directions (boxes: 3 x 3 axes).
-    Returns (depths (2 E_a E_b,), axes (2 E_a E_b, 3) in a's frame)."""
+    Returns (depths (E_a E_b,), signed axes (E_a E_b, 3) in a's frame)."""
     b_edges = _rotate(rotation, b.edge_directions)
     crosses = jnp.cross(a.edge_directions[:, None, :], b_edges[None, :, :]).reshape(-1, 3)
     eps = jnp.finfo(crosses.dtype).eps
     axes, valid = _safe_normalize(crosses, eps * eps)
     depths, signed_axes = _interval_depths(*_extremes(axes, a.vertices),
                                            *_extremes(axes, b_vertices_in_a), axes)
-    valid = jnp.concatenate([valid, valid])
     return jnp.where(valid, depths, jnp.inf), signed_axes
 
 
