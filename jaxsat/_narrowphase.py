@@ -184,11 +184,15 @@ def _gauss_map_axis(index, dir_a, dir_b, normals_a):
 
 
 def _use_gauss_map(a: Polytope, b: Polytope) -> bool:
-    """Static choice of the cheaper exact edge-edge method from the padded sizes."""
-    projection_cost = a.edge_directions.shape[0] * b.edge_directions.shape[0] * (
-        a.vertices.shape[0] + b.vertices.shape[0]) * 2
-    gauss_map_cost = a.edge_endpoints.shape[0] * b.edge_endpoints.shape[0] * 24
-    return gauss_map_cost < projection_cost
+    """Static choice of the edge-edge method from the padded sizes.
+
+    Projection tries every pair of unique edge directions; that is cheapest for boxes, and a
+    polyhedron with at most 3 edge directions is a parallelepiped, for which every such pair
+    is a Minkowski face. Any other shape goes through the Gauss map. Both methods then try
+    the same axes, so padding (which only repeats edges) never changes a result, separated
+    gaps included."""
+    max_directions = 3
+    return max(a.edge_directions.shape[0], b.edge_directions.shape[0]) > max_directions
 
 
 def _candidate_groups(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
@@ -260,9 +264,8 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> Penetra
       overlap and depth is the exact minimum translation distance; moving b by depth * normal
       leaves them touching. depth <= 0: separated, and -depth is the largest gap found on a
       candidate axis: at least the largest gap over the facet normals of the Minkowski
-      difference and at most the distance between the shapes. (In 3D which edge-edge axes are
-      tried depends on the padded sizes, so this gap, unlike an overlap, can change with
-      padding.) normal is a world-frame unit vector pointing from a towards b.
+      difference and at most the distance between the shapes. normal is a world-frame unit
+      vector pointing from a towards b.
     """
     _check_pair(a, pose_a, b, pose_b)
     a, pose_a, b, pose_b = _cast_pair(a, pose_a, b, pose_b)

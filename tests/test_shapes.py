@@ -361,10 +361,21 @@ def test_padding_never_changes_overlap_results(dim):
         np.testing.assert_array_equal(other_hits[decided], depth[decided] > 0, err_msg=name)
 
 
-@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.xfail(
-    strict=True, reason="known limitation: in 3D the padded sizes choose the edge-edge method "
-    "(all unique-direction pairs, or Gauss-map Minkowski faces only), and the separated gap is "
-    "the largest over the axes that method tries; overlap results do not change"))])
+def test_box_padding_never_changes_results():
+    """Unpadded boxes take the projection edge method, padded ones the Gauss map; both must
+    give the same depths and normals, overlapping or separated."""
+    a_half, b_half = np.array([0.7, 0.4, 0.5]), np.array([0.3, 0.9, 0.6])
+    poses_a, poses_b = _random_poses(3, 64, 5), _random_poses(3, 64, 6)
+    plain, _ = _query_many_poses(jaxsat.box(a_half), poses_a, jaxsat.box(b_half), poses_b)
+    padded, _ = _query_many_poses(jaxsat.box(a_half, max_vertices=10), poses_a,
+                                  jaxsat.box(b_half, max_vertices=10), poses_b)
+    depth = np.asarray(plain.depth)
+    assert 0 < np.sum(depth > 0) < len(depth)  # both overlapping and separated pairs
+    np.testing.assert_allclose(np.asarray(padded.depth), depth, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(padded.normal), np.asarray(plain.normal), atol=1e-9)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
 def test_padding_never_changes_separated_depth(dim):
     """The separation gap (depth <= 0) does not depend on the padding either."""
     results = _padding_variants(dim)
