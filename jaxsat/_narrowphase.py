@@ -146,9 +146,11 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
 
     Two edges can give the penetration axis only if their arcs on the Gauss map cross (the
     arc of a's edge and the arc of b's edge with b's normals negated); for those pairs the
-    supporting points are the edges themselves, so the depth needs no scan over vertices: it
-    is n . (p_a - p_b) / |n| with n = e_a x e_b, signed so the axis points out of a. Other pairs
-    are skipped: their axes never give the minimum.
+    supporting points are the edges themselves, so the depth needs no scan over vertices:
+    with n = e_a x e_b and Plucker moments m = e x p it is n . (p_a - p_b) / |n| =
+    -(e_b . m_a + e_a . m_b) / |n|, signed so the axis points out of a. Other pairs are
+    skipped: their axes never give the minimum. (The moment form cancels digits in float32;
+    `penetration` measures the winner again by projection, so that only affects near-ties.)
     Returns (depths (K_a K_b,), what `_gauss_map_axis` needs to build a winner's axis)."""
     points_a, dir_a, na1, na2 = _hull_edge_frames(a)
     points_b, dir_b, nb1, nb2 = _hull_edge_frames(b, rotation, translation)
@@ -214,10 +216,6 @@ def _candidate_groups(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
     return groups, b_vertices_in_a
 
 
-def _smallest(depths: jax.Array) -> jax.Array:
-    return jnp.min(depths)
-
-
 def _index_of_smallest(depths: jax.Array) -> jax.Array:
     """jnp.argmin(depths), for long `depths` as two plain reductions: XLA's CPU argmin (a
     variadic reduce) took 60% of a 20-vertex hull query. The barrier makes both reductions
@@ -235,7 +233,7 @@ def _best_axis(groups) -> tuple[jax.Array, jax.Array]:
     """The smallest depth over all groups and its unit axis (in a's frame)."""
     best_depth, best_axis = None, None
     for depths, axis_of in groups:
-        depth, axis = _smallest(depths), axis_of(_index_of_smallest(depths))
+        depth, axis = jnp.min(depths), axis_of(_index_of_smallest(depths))
         if best_depth is None:
             best_depth, best_axis = depth, axis
         else:
