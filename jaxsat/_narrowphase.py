@@ -216,24 +216,30 @@ def _candidate_groups(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
     return groups, b_vertices_in_a
 
 
-def _index_of_smallest(depths: jax.Array) -> jax.Array:
-    """jnp.argmin(depths), for long `depths` as two plain reductions: XLA's CPU argmin (a
-    variadic reduce) took 60% of a 20-vertex hull query. The barrier makes both reductions
-    read one materialised copy: if XLA recomputed `depths` inside each fused reduction, their
-    roundings could differ and no entry would equal the minimum. For short groups the
-    materialisation costs more than it saves, so they keep jnp.argmin."""
+def _winner(depths: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """(min, argmin) of one group's depths, in the forms XLA runs fastest on CPU.
+
+    A short group takes jnp.argmin and reads the minimum at that index: a separate min
+    reduction measured slower. A long group (the Gauss-map edge pairs) finds the index with
+    two plain reductions instead, since XLA's CPU argmin (a variadic reduce) took 60% of a
+    20-vertex hull query; the barrier makes both read one materialised copy, because if XLA
+    recomputed `depths` inside each fused reduction their roundings could differ and no entry
+    would equal the minimum."""
     if depths.shape[0] < 256:
-        return jnp.argmin(depths)
-    depths = jax.lax.optimization_barrier(depths)
+        index = jnp.argmin(depths)
+        return depths[index], index
+    smallest = jnp.min(depths)
+    copy = jax.lax.optimization_barrier(depths)
     positions = jnp.arange(depths.shape[0])
-    return jnp.min(jnp.where(depths == jnp.min(depths), positions, depths.shape[0] - 1))
+    return smallest, jnp.min(jnp.where(copy == jnp.min(copy), positions, depths.shape[0] - 1))
 
 
 def _best_axis(groups) -> tuple[jax.Array, jax.Array]:
     """The smallest depth over all groups and its unit axis (in a's frame)."""
     best_depth, best_axis = None, None
     for depths, axis_of in groups:
-        depth, axis = jnp.min(depths), axis_of(_index_of_smallest(depths))
+        depth, index = _winner(depths)
+        axis = axis_of(index)
         if best_depth is None:
             best_depth, best_axis = depth, axis
         else:
@@ -286,22 +292,38 @@ def _world_aabb(shape: Polytope, pose: Pose) -> tuple[jax.Array, jax.Array]:
 
 def _min_depth(a, pose_a, b, pose_b) -> jax.Array:
     groups, _ = _candidate_groups(a, pose_a, b, pose_b)
-    return functools.reduce(jnp.minimum, [jnp.min(depths) for depths, _ in groups])
+    return functools.reduce(jnp.minimum, [_winner(depths)[0] for depths, _ in groups])
 
 
 def intersects(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> jax.Array:
     """True where the two shapes overlap or touch (penetration depth >= 0).
 
-    The world AABBs are compared first; when they are disjoint the SAT is skipped (under
-    jax.vmap both branches run, and the answer is the same either way).
+    A single call compares the world AABBs first and skips the SAT when they are disjoint.
+    Under jax.vmap that skip would not pay (both branches of a batched cond run), so the
+    batched query goes straight to the SAT minimum; the answer is the same either way.
     """
     _check_pair(a, pose_a, b, pose_b)
     a, pose_a, b, pose_b = _cast_pair(a, pose_a, b, pose_b)
+    # A boolean has no derivative; stopping gradients here keeps `custom_vmap` (which has no
+    # reverse-mode rule) out of any gradient of a function that merely calls `intersects`.
+    return _intersects_pair(*jax.lax.stop_gradient((a, pose_a, b, pose_b)))
+
+
+def _sat_intersects(a, pose_a, b, pose_b) -> jax.Array:
+    return _min_depth(a, pose_a, b, pose_b) >= 0
+
+
+@jax.custom_batching.custom_vmap
+def _intersects_pair(a, pose_a, b, pose_b) -> jax.Array:
     low_a, high_a = _world_aabb(a, pose_a)
     low_b, high_b = _world_aabb(b, pose_b)
     boxes_overlap = jnp.all((low_a <= high_b) & (low_b <= high_a))
-    return jax.lax.cond(
-        boxes_overlap,
-        lambda: _min_depth(a, pose_a, b, pose_b) >= 0,
-        lambda: jnp.array(False),
-    )
+    return jax.lax.cond(boxes_overlap, _sat_intersects, lambda *_: jnp.array(False),
+                        a, pose_a, b, pose_b)
+
+
+@_intersects_pair.def_vmap
+def _intersects_batched(axis_size, in_batched, a, pose_a, b, pose_b):
+    del axis_size  # the batch size comes with the batched arguments
+    in_axes = jax.tree.map(lambda batched: 0 if batched else None, tuple(in_batched))
+    return jax.vmap(_sat_intersects, in_axes=in_axes)(a, pose_a, b, pose_b), True

@@ -855,3 +855,34 @@ def test_wrong_argument_types_raise(query):
         query(cube.vertices, pose, cube, pose)
     with pytest.raises(ValueError, match="Pose"):
         query(cube, pose, cube, (pose.translation, pose.rotation))
+
+
+def test_intersects_single_calls_batches_and_gradients_agree():
+    """intersects has two code paths (a single call checks AABBs first, a vmapped one goes
+    straight to SAT); both must agree with the depth sign, nested vmaps with shared arguments
+    must work, and a function that calls intersects must stay differentiable."""
+    square = jaxsat.box([0.5, 0.5])
+    hexagon = jaxsat.regular_polygon(6, 0.7, max_vertices=8)
+    offsets = np.linspace(-2.5, 2.5, 11)  # overlapping, touching-free and AABB-disjoint pairs
+    at = lambda x, y: jaxsat.pose2(x, y, 0.3)  # noqa: E731
+    origin = jaxsat.pose2(0.0, 0.0, 0.0)
+    grid = jax.jit(jax.vmap(jax.vmap(
+        lambda x, y: jaxsat.intersects(square, origin, hexagon, at(x, y)),
+        in_axes=(0, None)), in_axes=(None, 0)))(offsets, offsets)
+    depths = jax.vmap(jax.vmap(
+        lambda x, y: jaxsat.penetration(square, origin, hexagon, at(x, y)).depth,
+        in_axes=(0, None)), in_axes=(None, 0))(offsets, offsets)
+    single = jax.jit(lambda x, y: jaxsat.intersects(square, origin, hexagon, at(x, y)))
+    singles = np.array([[bool(single(x, y)) for x in offsets] for y in offsets])
+    decided = np.abs(np.asarray(depths)) > 1e-6
+    assert 0 < np.sum(np.asarray(depths) > 0) < depths.size
+    np.testing.assert_array_equal(np.asarray(grid)[decided], np.asarray(depths)[decided] >= 0)
+    np.testing.assert_array_equal(singles, np.asarray(grid))
+
+    def cost(x):
+        hit = jaxsat.intersects(square, origin, hexagon, at(x, 0.0))
+        return jnp.where(hit, x**2, 3.0 * x)
+
+    assert float(jax.grad(cost)(0.5)) == pytest.approx(1.0)  # overlapping: d(x^2)/dx
+    assert float(jax.grad(cost)(2.5)) == pytest.approx(3.0)  # separated: d(3x)/dx
+    np.testing.assert_allclose(jax.vmap(jax.grad(cost))(jnp.array([0.5, 2.5])), [1.0, 3.0])
