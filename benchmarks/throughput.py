@@ -1,4 +1,5 @@
-"""Throughput of `jax.jit(jax.vmap(jaxsat.penetration))`, in pairs per second (float32).
+"""Throughput of `jax.jit(jax.vmap(jaxsat.penetration))` (or `intersects`), in pairs per second
+(float32).
 
 Cases: random convex polygons padded to 8 vertices (2D), random boxes (3D) and convex hulls of
 20 random points padded to `max_vertices=20` (3D). Each batch indexes a pool of random shapes
@@ -157,9 +158,12 @@ def machine_info() -> dict:
 # ----------------------------------------------------------------------------- timing
 
 
-def compile_kernel(case: str, pool: jaxsat.Polytope, pairs: int):
+QUERIES = {"penetration": jaxsat.penetration, "intersects": jaxsat.intersects}
+
+
+def compile_kernel(case: str, pool: jaxsat.Polytope, pairs: int, query: str):
     """(executable, compile seconds, bytes needed or None), compiled from abstract inputs."""
-    kernel = jax.jit(jax.vmap(jaxsat.penetration))
+    kernel = jax.jit(jax.vmap(QUERIES[query]))
     start = time.perf_counter()
     compiled = kernel.lower(*abstract_batch(case, pool, pairs)).compile()
     seconds = time.perf_counter() - start
@@ -200,7 +204,7 @@ def run_case(case: str, sizes: list[int], args, rng: np.random.Generator, echo) 
                               f"--max-call-seconds {args.max_call_seconds:g}")
             echo(format_row(row))
             continue
-        executable, compile_s, needed = compile_kernel(case, pool, pairs)
+        executable, compile_s, needed = compile_kernel(case, pool, pairs, args.query)
         row["compile_s"] = compile_s
         row["memory_needed_bytes"] = needed
         available = available_memory_bytes()
@@ -211,13 +215,14 @@ def run_case(case: str, sizes: list[int], args, rng: np.random.Generator, echo) 
             continue
         arguments = make_batch(case, pool, pairs, rng)
         times = time_calls(executable, arguments, args.repeats, args.budget_seconds)
-        depth = executable(*arguments).depth
+        result = executable(*arguments)
+        hits = result.depth > 0 if args.query == "penetration" else result
         del arguments
         best = min(times)
         seconds_per_pair = best / pairs
         row.update(best_s=best, median_s=statistics.median(times), repeats=len(times),
                    pairs_per_second=pairs / best,
-                   colliding_fraction=float(jnp.mean(depth > 0)))
+                   colliding_fraction=float(jnp.mean(hits)))
         echo(format_row(row))
     return rows
 
@@ -251,6 +256,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "size, to take longer (default: %(default)s)")
     parser.add_argument("--pool", type=int, default=256,
                         help="distinct random shapes per case (default: %(default)s)")
+    parser.add_argument("--query", choices=list(QUERIES), default="penetration",
+                        help="the query timed: depth and normal, or the boolean only "
+                        "(default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     parser.add_argument("--json", nargs="?", const="", default=None, metavar="PATH",
                         help="also write the results and machine info as JSON to PATH "
@@ -269,7 +277,8 @@ def main(argv=None) -> int:
     def echo(text: str) -> None:
         print(text, flush=True)
 
-    echo(f"jaxsat {info['jaxsat']} throughput, float32, jax.jit(jax.vmap(jaxsat.penetration))")
+    echo(f"jaxsat {info['jaxsat']} throughput, float32, "
+         f"jax.jit(jax.vmap(jaxsat.{args.query}))")
     echo(f"{info['cpu_model']}, {info['cpu_count']} CPUs, {info['platform']}, jax {info['jax']} "
          f"({info['backend']}), load average {info['load_average_1_5_15']}, {info['date_utc']}")
     echo("compile: ahead-of-time compile of the batch; best call: best of the timed calls "
