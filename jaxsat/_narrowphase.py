@@ -86,24 +86,30 @@ def _rotate(rotation, points):
                       for r in range(rotation.shape[0])], axis=-1)
 
 
-def _interval_depths(a_min, a_max, b_min, b_max, normals):
-    """The better sense of each axis: depth min(b pushed along +n, along -n), and that axis."""
+def _interval_depths(a_min, a_max, b_min, b_max):
+    """The better sense of each axis: depth min(b pushed along +n, along -n), and its sign."""
     plus, minus = a_max - b_min, b_max - a_min
-    return jnp.minimum(plus, minus), jnp.where((plus <= minus)[:, None], normals, -normals)
+    return jnp.minimum(plus, minus), jnp.where(plus <= minus, 1.0, -1.0).astype(plus.dtype)
 
 
 def _face_axes(a: Polytope, b_vertices_in_a, b: Polytope, a_vertices_in_b, rotation):
     """Candidates from both shapes' face normals, each tested against the other's vertices.
 
-    Returns (depths (F_a + F_b,), signed axes (F_a + F_b, D) in a's frame)."""
+    Returns depths (F_a + F_b,) and `axis_of`, mapping a candidate's index to its signed unit
+    axis in a's frame (signs and normals are gathered for the winner only)."""
     b_min, b_max = _extremes(a.face_normals, b_vertices_in_a)
-    depths_a, axes_a = _interval_depths(a.face_extents[:, 0], a.face_extents[:, 1],
-                                        b_min, b_max, a.face_normals)
+    depths_a, signs_a = _interval_depths(a.face_extents[:, 0], a.face_extents[:, 1], b_min, b_max)
     a_min, a_max = _extremes(b.face_normals, a_vertices_in_b)
-    depths_b, axes_b = _interval_depths(a_min, a_max,
-                                        b.face_extents[:, 0], b.face_extents[:, 1],
-                                        _rotate(rotation, b.face_normals))
-    return jnp.concatenate([depths_a, depths_b]), jnp.concatenate([axes_a, axes_b])
+    depths_b, signs_b = _interval_depths(a_min, a_max, b.face_extents[:, 0], b.face_extents[:, 1])
+    signs = jnp.concatenate([signs_a, signs_b])
+    normals = jnp.concatenate([a.face_normals, b.face_normals])
+    num_a = a.face_normals.shape[0]
+
+    def axis_of(index):
+        normal = normals[index]
+        return signs[index] * jnp.where(index < num_a, normal, _rotate(rotation, normal))
+
+    return jnp.concatenate([depths_a, depths_b]), axis_of
 
 
 def _safe_normalize(vectors, min_squared_norm):
@@ -119,14 +125,14 @@ def _edge_axes_by_projection(a: Polytope, b: Polytope, b_vertices_in_a, rotation
     """Edge-edge candidates for every pair of unique edge directions, by full projection.
 
     Cheapest when shapes have few unique edge directions (boxes: 3 x 3 axes).
-    Returns (depths (E_a E_b,), signed axes (E_a E_b, 3) in a's frame)."""
+    Returns depths (E_a E_b,) and `axis_of` (index -> signed unit axis in a's frame)."""
     b_edges = _rotate(rotation, b.edge_directions)
     crosses = jnp.cross(a.edge_directions[:, None, :], b_edges[None, :, :]).reshape(-1, 3)
     eps = jnp.finfo(crosses.dtype).eps
     axes, valid = _safe_normalize(crosses, eps * eps)
-    depths, signed_axes = _interval_depths(*_extremes(axes, a.vertices),
-                                           *_extremes(axes, b_vertices_in_a), axes)
-    return jnp.where(valid, depths, jnp.inf), signed_axes
+    depths, signs = _interval_depths(*_extremes(axes, a.vertices),
+                                     *_extremes(axes, b_vertices_in_a))
+    return jnp.where(valid, depths, jnp.inf), lambda index: signs[index] * axes[index]
 
 
 def _hull_edge_frames(shape: Polytope, rotation=None, translation=None):
@@ -205,14 +211,12 @@ def _candidate_groups(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
     rotation, translation = _relative_pose(pose_a, pose_b)
     b_vertices_in_a = _rotate(rotation, b.vertices) + translation
     a_vertices_in_b = _rotate(rotation.T, a.vertices - translation)
-    face_depths, face_axes = _face_axes(a, b_vertices_in_a, b, a_vertices_in_b, rotation)
-    groups = [(face_depths, lambda index: face_axes[index])]
+    groups = [_face_axes(a, b_vertices_in_a, b, a_vertices_in_b, rotation)]
     if a.dim == 3 and _use_gauss_map(a, b):
         edge_depths, edge_data = _edge_axes_by_gauss_map(a, b, rotation, translation)
         groups.append((edge_depths, lambda index: _gauss_map_axis(index, *edge_data)))
     elif a.dim == 3:
-        edge_depths, edge_axes = _edge_axes_by_projection(a, b, b_vertices_in_a, rotation)
-        groups.append((edge_depths, lambda index: edge_axes[index]))
+        groups.append(_edge_axes_by_projection(a, b, b_vertices_in_a, rotation))
     return groups, b_vertices_in_a
 
 
