@@ -886,3 +886,47 @@ def test_intersects_single_calls_batches_and_gradients_agree():
     assert float(jax.grad(cost)(0.5)) == pytest.approx(1.0)  # overlapping: d(x^2)/dx
     assert float(jax.grad(cost)(2.5)) == pytest.approx(3.0)  # separated: d(3x)/dx
     np.testing.assert_allclose(jax.vmap(jax.grad(cost))(jnp.array([0.5, 2.5])), [1.0, 3.0])
+
+
+def test_jitted_hull_pair_regression_picks_a_true_axis():
+    """Regression: a jitted query on this separated pair of 8-point hulls once returned depth
+    +0.35 because the argmin over Gauss-map edge pairs found no entry equal to the minimum
+    (XLA had recomputed the depths with different rounding). Inputs found by a random sweep."""
+    points_a = np.array([
+        [2.0023573450508905, -1.587164001458463, -0.7671333729974577],
+        [-0.1002567493530576, 0.892654254964764, 0.38992295549373895],
+        [0.8483110857317361, -0.5289712565347323, 0.7346209638673363],
+        [-0.27123402994105134, 0.9687589406662617, 0.9900425699056145],
+        [-0.3933076974087195, 0.24059198614868602, 0.8457175170950988],
+        [-0.01751846963796733, -0.1234253081006076, 0.1785610549254531],
+        [0.713488048756262, 0.9008130557184157, -1.0601837823036484],
+        [0.5798861665235018, 0.4211377349334494, -0.39461205432117624]])
+    points_b = np.array([
+        [-1.1176696951212617, 0.9319622921692319, -0.18723315887819536],
+        [1.040359492411596, 0.9304172928924245, -0.3969081946970987],
+        [-0.6829162742724009, 1.3624981903209645, -0.8041389201313714],
+        [0.3060035053116264, 0.06894860751459406, 0.3847623708328469],
+        [0.998698247667529, 1.0451892794230175, -0.03892180531790738],
+        [1.3578872608493435, -1.1412332252220556, 0.8159002488740417],
+        [-1.207904299389802, -1.1719667500280957, 0.02964502902058478],
+        [0.1627809043501228, -1.770985856440146, 0.6898852845290933]])
+    translation_a = np.array([0.9337030401133525, 0.6693894595860311, -0.4617510830043323])
+    quaternion_a = np.array([-1.1140884510901978, -1.733741180849187, -0.5605240277654393,
+                             -1.3302977918457302])
+    translation_b = np.array([2.5710732912577745, -1.948006217559075, 1.7968215274768635])
+    quaternion_b = np.array([0.47488523655217424, 0.9809361879010339, -0.061569023524906,
+                             -0.22332408189801645])
+    a = jaxsat.polyhedron(points_a, max_vertices=8)
+    b = jaxsat.polyhedron(points_b, max_vertices=8)
+    pose_a = jaxsat.pose3(translation_a, quaternion_a)
+    pose_b = jaxsat.pose3(translation_b, quaternion_b)
+    result = jax.jit(jaxsat.penetration)(a, pose_a, b, pose_b)
+    world_a = oracle.to_world(points_a, oracle.rotation_3d(quaternion_a), translation_a)
+    world_b = oracle.to_world(points_b, oracle.rotation_3d(quaternion_b), translation_b)
+    reference = oracle.evaluate(world_a, world_b)
+    depth = float(result.depth)
+    assert reference.depth < 0 and depth < 0
+    assert reference.depth - 1e-9 >= depth >= -reference.distance - 1e-9
+    gap = oracle.support_gap(np.asarray(result.normal), world_a, world_b)
+    assert gap == pytest.approx(depth, abs=1e-9)  # the normal really has this gap
+    assert not bool(jax.jit(jaxsat.intersects)(a, pose_a, b, pose_b))
