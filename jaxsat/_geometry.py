@@ -173,7 +173,7 @@ def convex_hull_3d(points: np.ndarray) -> Hull3D:
     # A point taken in early can end up inside a face or an edge once later points arrive.
     # True corners touch at least 3 faces; rebuilding from those alone drops the others.
     faces_at = [set() for _ in range(len(hull.vertices))]
-    for (start, end), faces in zip(hull.edges, hull.edge_faces, strict=False):
+    for (start, end), faces in zip(hull.edges, hull.edge_faces, strict=True):
         faces_at[start].update(faces.tolist())
         faces_at[end].update(faces.tolist())
     corners = np.array([len(faces) >= 3 for faces in faces_at])
@@ -214,8 +214,8 @@ def _incremental_hull(points: np.ndarray, simplex: list[int], tolerance: float) 
         visible = normals @ points[index] - offsets > tolerance
         if not np.any(visible):
             continue
-        horizon = _horizon_edges([t for t, v in zip(triangles, visible, strict=False) if v])
-        triangles = [t for t, v in zip(triangles, visible, strict=False) if not v]
+        horizon = _horizon_edges([t for t, v in zip(triangles, visible, strict=True) if v])
+        triangles = [t for t, v in zip(triangles, visible, strict=True) if not v]
         triangles += [[a, b, index] for a, b in horizon]
     return np.array(triangles)
 
@@ -247,7 +247,7 @@ def _merge_coplanar(points: np.ndarray, triangles: np.ndarray) -> Hull3D:
     normals, _ = _triangle_planes(vertices, triangles)
     face_of_triangle, face_normals = _cluster_normals(vertices, triangles, normals)
     edge_faces: dict[tuple[int, int], list[int]] = {}
-    for triangle, face in zip(triangles, face_of_triangle, strict=False):
+    for triangle, face in zip(triangles, face_of_triangle, strict=True):
         for k in range(3):
             a, b = int(triangle[k]), int(triangle[(k + 1) % 3])
             edge_faces.setdefault((min(a, b), max(a, b)), []).append(int(face))

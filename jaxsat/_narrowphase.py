@@ -160,9 +160,8 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     Returns (depths (K_a K_b,), what `_gauss_map_axis` needs to build a winner's axis)."""
     points_a, dir_a, na1, na2 = _hull_edge_frames(a)
     points_b, dir_b, nb1, nb2 = _hull_edge_frames(b, rotation, translation)
-    pairwise = lambda x, y: sum(x.T[k][:, None] * y.T[k][None, :] for k in range(3))  # noqa: E731
-    cba, dba = -pairwise(dir_a, nb1), -pairwise(dir_a, nb2)
-    adc, bdc = pairwise(na1, dir_b), pairwise(na2, dir_b)
+    cba, dba = -_project(dir_a, nb1), -_project(dir_a, nb2)
+    adc, bdc = _project(na1, dir_b), _project(na2, dir_b)
     minkowski_face = (cba * dba < 0) & (adc * bdc < 0) & (cba * bdc > 0)
     # |e_a x e_b| from the cross product itself: 1 - cos^2 rounds (near-)parallel edges to
     # noise, and noise must not pass for a Minkowski face. Components stay separate arrays so
@@ -176,7 +175,7 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     orientation = jnp.where(bdc > 0, 1.0, -1.0).astype(sine_squared.dtype)
     inverse_sine = jax.lax.rsqrt(jnp.where(valid, sine_squared, 1.0))
     moment_a, moment_b = jnp.cross(dir_a, points_a), jnp.cross(dir_b, points_b)
-    numerator = -pairwise(moment_a, dir_b) - pairwise(dir_a, moment_b)
+    numerator = -_project(moment_a, dir_b) - _project(dir_a, moment_b)
     separations = numerator * orientation * inverse_sine
     depths = jnp.where(valid, separations, jnp.inf).reshape(-1)
     return depths, (dir_a, dir_b, na2)

@@ -231,8 +231,6 @@ def _padded_fields(shape: Polytope, sizes: tuple[int, int, int, int]) -> dict[st
         field, size = np.asarray(getattr(shape, name)), sizes[size_index]
         if field.dtype == bool:
             fields[name] = np.concatenate([field, np.zeros(size - len(field), bool)])
-        elif len(field) == 0:
-            fields[name] = np.zeros((size, *field.shape[1:]), field.dtype)
         else:
             fields[name] = _pad_rows(field, size, name)[0]
     return fields

@@ -818,14 +818,12 @@ def _single_3d():
 def test_mismatched_dimensions_raise(query):
     square, pose_2d = _single_2d()
     cube, pose_3d = _single_3d()
-    with pytest.raises(ValueError, match="dimension"):
-        query(square, pose_3d, square, pose_3d)
-    with pytest.raises(ValueError, match="dimension"):
-        query(square, pose_2d, cube, pose_3d)
-    with pytest.raises(ValueError, match="dimension"):
-        query(cube, pose_3d, cube, pose_2d)
-    with pytest.raises(ValueError, match="dimension"):
-        jax.jit(query)(square, pose_2d, cube, pose_2d)
+    for call, args in [(query, (square, pose_3d, square, pose_3d)),
+                       (query, (square, pose_2d, cube, pose_3d)),
+                       (query, (cube, pose_3d, cube, pose_2d)),
+                       (jax.jit(query), (square, pose_2d, cube, pose_2d))]:
+        with pytest.raises(ValueError, match="dimension"):
+            call(*args)
 
 
 @pytest.mark.parametrize("query", [jaxsat.penetration, jaxsat.intersects])
@@ -833,14 +831,10 @@ def test_batched_inputs_without_vmap_raise(query):
     cube, pose = _single_3d()
     cubes = jaxsat.stack([cube, cube])
     poses = jax.vmap(jaxsat.pose3)(np.zeros((2, 3)), np.tile([1.0, 0, 0, 0], (2, 1)))
-    with pytest.raises(ValueError, match="vmap"):
-        query(cubes, pose, cube, pose)
-    with pytest.raises(ValueError, match="vmap"):
-        query(cube, pose, cubes, pose)
-    with pytest.raises(ValueError, match="vmap"):
-        query(cube, poses, cube, pose)
-    with pytest.raises(ValueError, match="vmap"):
-        query(cube, pose, cube, poses)
+    for args in [(cubes, pose, cube, pose), (cube, pose, cubes, pose),
+                 (cube, poses, cube, pose), (cube, pose, cube, poses)]:
+        with pytest.raises(ValueError, match="vmap"):
+            query(*args)
     with pytest.raises(ValueError, match="vmap"):
         jax.vmap(query, in_axes=(0, 0, None, None))(cubes, poses, cubes, pose)
     # Correct use of the same batched inputs works.
