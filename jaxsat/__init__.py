@@ -1,5 +1,8 @@
 """jaxsat: batched, differentiable Separating Axis Theorem collision detection in JAX."""
 
+from jaxsat._distance import ClosestPoints as ClosestPoints
+from jaxsat._distance import closest_points as closest_points
+from jaxsat._distance import signed_distance as signed_distance
 from jaxsat._narrowphase import Penetration as Penetration
 from jaxsat._narrowphase import intersects as intersects
 from jaxsat._narrowphase import penetration as penetration
@@ -12,14 +15,17 @@ from jaxsat._shapes import polygon as polygon
 from jaxsat._shapes import polyhedron as polyhedron
 from jaxsat._shapes import regular_polygon as regular_polygon
 from jaxsat._shapes import stack as stack
+from jaxsat._smoothing import smoothing_error_bound as smoothing_error_bound
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "ClosestPoints",
     "Penetration",
     "Polytope",
     "Pose",
     "box",
+    "closest_points",
     "intersects",
     "penetration",
     "polygon",
@@ -27,5 +33,7 @@ __all__ = [
     "pose2",
     "pose3",
     "regular_polygon",
+    "signed_distance",
+    "smoothing_error_bound",
     "stack",
 ]
