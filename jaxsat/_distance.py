@@ -80,16 +80,17 @@ def _segments(shape: Polytope, vertices):
 
 
 def _dot(x, y):
-    return sum(x[..., k] * y[..., k] for k in range(x.shape[-1]))
+    return sum(x_k * y_k for x_k, y_k in zip(x, y, strict=True))
 
 
 def _segment_parameters(start_a, delta_a, start_b, delta_b):
-    """Parameters (s, t) in [0, 1] of the closest points start + s delta of two segments.
+    """Parameters (s, t) in [0, 1] of the closest points start + s delta of two segments,
+    given as lists of coordinate arrays (broadcasting).
 
     The closest pair of the lines, clamped: t is re-optimised for the clamped s and s again
     for the clamped t, which is exact for a convex quadratic on the unit square. Zero-length
     segments and parallel ones (a tiny determinant relative to the lengths) take s = 0."""
-    offset = start_a - start_b
+    offset = [a_k - b_k for a_k, b_k in zip(start_a, start_b, strict=True)]
     aa, bb, ab = _dot(delta_a, delta_a), _dot(delta_b, delta_b), _dot(delta_a, delta_b)
     a_off, b_off = _dot(delta_a, offset), _dot(delta_b, offset)
     determinant = aa * bb - ab * ab
@@ -105,18 +106,34 @@ def _segment_parameters(start_a, delta_a, start_b, delta_b):
 
 
 def _closest_segment_pair(a: Polytope, a_vertices, b: Polytope, b_vertices):
-    """The closest pair of points over all (edge of a, edge of b) pairs, (D,) each."""
+    """The closest pair of points over all (edge of a, edge of b) pairs, (D,) each, and
+    whether it was found.
+
+    Every coordinate stays a separate (K_a, K_b) array so XLA fuses the whole search. Ties are
+    averaged instead of picked by argmin (slow on CPU): closest pairs of convex sets share one
+    difference vector, so the average of tied pairs is a closest pair too."""
     start_a, end_a = _segments(a, a_vertices)
     start_b, end_b = _segments(b, b_vertices)
-    delta_a, delta_b = end_a - start_a, end_b - start_b
-    s, t = _segment_parameters(start_a[:, None, :], delta_a[:, None, :],
-                               start_b[None, :, :], delta_b[None, :, :])
-    points_a = start_a[:, None, :] + s[..., None] * delta_a[:, None, :]
-    points_b = start_b[None, :, :] + t[..., None] * delta_b[None, :, :]
-    squared = jnp.sum((points_b - points_a) ** 2, axis=-1).reshape(-1)
-    index = jnp.argmin(squared)
-    flat = lambda x: x.reshape(-1, x.shape[-1])  # noqa: E731
-    return flat(points_a)[index], flat(points_b)[index]
+    column = lambda x: [x[:, k][:, None] for k in range(a.dim)]  # noqa: E731
+    row = lambda x: [x[:, k][None, :] for k in range(a.dim)]  # noqa: E731
+    origin_a, delta_a = column(start_a), column(end_a - start_a)
+    origin_b, delta_b = row(start_b), row(end_b - start_b)
+    s, t = _segment_parameters(origin_a, delta_a, origin_b, delta_b)
+    points_a = [o + s * d for o, d in zip(origin_a, delta_a, strict=True)]
+    points_b = [o + t * d for o, d in zip(origin_b, delta_b, strict=True)]
+    squared = _dot(*([[q - p for p, q in zip(points_a, points_b, strict=True)]] * 2))
+    # Near-ties count as ties: XLA may recompute the squares inside each fusion with other
+    # roundings. A pair within 64 eps of the minimum has a difference vector within
+    # sqrt(64 eps) of the closest one (|d|^2 is strongly convex), which moves the gap along its
+    # axis only to second order; if no entry qualifies, the SAT axis stands in.
+    eps = jnp.finfo(squared.dtype).eps
+    smallest = jnp.min(squared)
+    closest = squared <= smallest + 64 * eps * smallest
+    count = jnp.sum(closest)
+    safe_count = jnp.maximum(count, 1).astype(squared.dtype)
+    mean = lambda x: jnp.sum(jnp.where(closest, x, 0.0)) / safe_count  # noqa: E731
+    return (jnp.stack([mean(jnp.broadcast_to(x, squared.shape)) for x in points_a]),
+            jnp.stack([mean(jnp.broadcast_to(x, squared.shape)) for x in points_b]), count > 0)
 
 
 def _exact_parts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
@@ -126,8 +143,8 @@ def _exact_parts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
     b_vertices = _rotate(rotation, b.vertices) + translation
     frozen = jax.lax.stop_gradient((a, pose_a, b, pose_b))
     _, sat_axis = _best_axis(_candidate_groups(*frozen)[0])
-    point_a, point_b = _closest_segment_pair(a, frozen[0].vertices, b,
-                                             jax.lax.stop_gradient(b_vertices))
+    point_a, point_b, _ = _closest_segment_pair(a, frozen[0].vertices, b,
+                                                jax.lax.stop_gradient(b_vertices))
     segment_axis, valid = _safe_normalize(point_b - point_a, 0.0)
     # Touching or crossing edges give no direction; the SAT axis stands in (any unit axis is
     # a lower bound, so the stand-in can never raise the result).
@@ -198,7 +215,7 @@ def _touching_witnesses(a: Polytope, b: Polytope, rotation, translation, b_verti
     and edge-edge features). Otherwise a vertex of one shape faces a face of the other: its
     support vertex along the axis, moved across by the distance, lands inside the other shape;
     whichever of the two constructions lands inside (least outside) is the pair."""
-    point_a, point_b = _closest_segment_pair(a, a.vertices, b, b_vertices)
+    point_a, point_b, found = _closest_segment_pair(a, a.vertices, b, b_vertices)
     segment_gap = jnp.sqrt(jnp.sum((point_b - point_a) ** 2))
     scale = jnp.max(jnp.abs(a.vertices)) + jnp.max(jnp.abs(b_vertices)) + distance
     tolerance = jnp.sqrt(jnp.finfo(distance.dtype).eps) * scale
@@ -209,7 +226,7 @@ def _touching_witnesses(a: Polytope, b: Polytope, rotation, translation, b_verti
     a_faces_b = _outside(to_b_frame(onto_b)[None], b) <= _outside(onto_a[None], a)
     face_a = jnp.where(a_faces_b, support_a, onto_a)
     face_b = jnp.where(a_faces_b, onto_b, support_b)
-    use_segments = segment_gap <= distance + tolerance
+    use_segments = found & (segment_gap <= distance + tolerance)
     return jnp.where(use_segments, point_a, face_a), jnp.where(use_segments, point_b, face_b)
 
 

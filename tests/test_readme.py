@@ -22,6 +22,20 @@ def test_readme_example_runs():
     assert lines[2] == "-1.0"
 
 
+def test_readme_signed_distance_example_runs():
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
+    assert len(blocks) >= 2, "README.md has no signed-distance example"
+    result = subprocess.run([sys.executable, "-c", blocks[1]], capture_output=True, text=True,
+                            timeout=300, check=False)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert abs(float(lines[0]) - 2**0.5) < 1e-6
+    assert float(lines[1]) == -1.0
+    assert re.fullmatch(r"\[1\.\s+1\.\]\s+\[2\.\s+2\.\]", lines[2]), lines[2]
+    assert abs(float(lines[3]) - 0.5**0.5) < 1e-6
+    assert lines[4] == "True"
+
+
 def test_quickstart_commands():
     text = README.read_text()
     assert 'pip install -e ".[dev]" && python -m jaxsat demo' in text
