@@ -70,13 +70,27 @@ def _gap(axes, a_vertices, a_mask, b_vertices, b_mask):
     return low_b - high_a
 
 
-def _segments(shape: Polytope, vertices):
-    """(start, end) of every edge, (K, D) each. A 2D polygon's edges join consecutive
-    vertices; padding repeats vertex 0, so padded edges shrink to that (real) point."""
+def _segment_indices(shape: Polytope):
+    """Vertex indices (start, end) of every edge, (K,) each. A 2D polygon's edges join
+    consecutive vertices; padding repeats vertex 0, so padded edges shrink to that point."""
     if shape.dim == 2:
-        return vertices, jnp.roll(vertices, -1, axis=0)
-    endpoints = shape.edge_endpoints
-    return vertices[endpoints[:, 0]], vertices[endpoints[:, 1]]
+        first = jnp.arange(shape.vertices.shape[0])
+        return first, jnp.roll(first, -1)
+    return shape.edge_endpoints[:, 0], shape.edge_endpoints[:, 1]
+
+
+def _segments(shape: Polytope, vertices):
+    """(start, end) points of every edge, (K, D) each."""
+    start, end = _segment_indices(shape)
+    return vertices[start], vertices[end]
+
+
+def _vertex_weights(shape: Polytope, start_weights, end_weights):
+    """Per-vertex weights (V,) from weights on every edge's start and end points, (K,) each."""
+    vertices = jnp.arange(shape.vertices.shape[0])
+    start, end = _segment_indices(shape)
+    return (start_weights @ (start[:, None] == vertices).astype(start_weights.dtype)
+            + end_weights @ (end[:, None] == vertices).astype(end_weights.dtype))
 
 
 def _dot(x, y):
@@ -106,8 +120,8 @@ def _segment_parameters(start_a, delta_a, start_b, delta_b):
 
 
 def _closest_segment_pair(a: Polytope, a_vertices, b: Polytope, b_vertices):
-    """The closest pair of points over all (edge of a, edge of b) pairs, (D,) each, and
-    whether it was found.
+    """The closest pair of points over all (edge of a, edge of b) pairs, (D,) each, whether
+    it was found, and the points as weights on a's and b's vertices ((V_a,), (V_b,)).
 
     Every coordinate stays a separate (K_a, K_b) array so XLA fuses the whole search. Ties are
     averaged instead of picked by argmin (slow on CPU): closest pairs of convex sets share one
@@ -131,32 +145,157 @@ def _closest_segment_pair(a: Polytope, a_vertices, b: Polytope, b_vertices):
     closest = squared <= smallest + 64 * eps * smallest
     count = jnp.sum(closest)
     safe_count = jnp.maximum(count, 1).astype(squared.dtype)
-    mean = lambda x: jnp.sum(jnp.where(closest, x, 0.0)) / safe_count  # noqa: E731
-    return (jnp.stack([mean(jnp.broadcast_to(x, squared.shape)) for x in points_a]),
-            jnp.stack([mean(jnp.broadcast_to(x, squared.shape)) for x in points_b]), count > 0)
+    share = jnp.where(closest, 1.0, 0.0) / safe_count
+    mean = lambda x: jnp.sum(share * x)  # noqa: E731
+    weights_a = _vertex_weights(a, jnp.sum(share * (1 - s), axis=1), jnp.sum(share * s, axis=1))
+    weights_b = _vertex_weights(b, jnp.sum(share * (1 - t), axis=0), jnp.sum(share * t, axis=0))
+    return (jnp.stack([mean(x) for x in points_a]), jnp.stack([mean(x) for x in points_b]),
+            count > 0, weights_a, weights_b)
 
 
 def _exact_parts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
-    """Everything in a's frame: the two candidate axes' gaps (differentiable), the axes, the
-    closest segment pair, and b's vertices."""
+    """Values only, in a's frame: the two candidate axes' gaps, the axes, b's vertices."""
     rotation, translation = _relative_pose(pose_a, pose_b)
     b_vertices = _rotate(rotation, b.vertices) + translation
-    frozen = jax.lax.stop_gradient((a, pose_a, b, pose_b))
-    _, sat_axis = _best_axis(_candidate_groups(*frozen)[0])
-    point_a, point_b, _ = _closest_segment_pair(a, frozen[0].vertices, b,
-                                                jax.lax.stop_gradient(b_vertices))
+    _, sat_axis = _best_axis(_candidate_groups(a, pose_a, b, pose_b)[0])
+    point_a, point_b, *_ = _closest_segment_pair(a, a.vertices, b, b_vertices)
     segment_axis, valid = _safe_normalize(point_b - point_a, 0.0)
     # Touching or crossing edges give no direction; the SAT axis stands in (any unit axis is
     # a lower bound, so the stand-in can never raise the result).
     segment_axis = jnp.where(valid, segment_axis, sat_axis)
     axes = jnp.stack([sat_axis, segment_axis])
     gaps = _gap(axes, a.vertices, a.vertex_mask, b_vertices, b.vertex_mask)
-    return gaps, axes, (point_a, point_b), b_vertices
+    return gaps, axes, b_vertices
+
+
+def _one_hot(index, size, dtype):
+    return (jnp.arange(size) == index).astype(dtype)
+
+
+def _plane_basis(axis):
+    """Two unit vectors spanning the plane orthogonal to a unit 3D axis."""
+    helper = jnp.where(jnp.abs(axis[0]) < 0.6, jnp.array([1.0, 0, 0], axis.dtype),
+                       jnp.array([0, 1.0, 0], axis.dtype))
+    first = _safe_normalize(jnp.cross(axis, helper), 0.0)[0]
+    return first, jnp.cross(axis, first)
+
+
+def _segment_weights(vertices, first, last, point):
+    """Weights on vertices `first`, `last` of the point of segment [first, last] nearest to
+    `point`, (V,)."""
+    start, delta = vertices[first], vertices[last] - vertices[first]
+    length = jnp.sum(delta**2)
+    t = jnp.clip(jnp.sum((point - start) * delta) / jnp.where(length > 0, length, 1.0), 0, 1)
+    size, dtype = vertices.shape[0], vertices.dtype
+    return (1 - t) * _one_hot(first, size, dtype) + t * _one_hot(last, size, dtype)
+
+
+def _face_weights(vertices, mask, axis, point, lowest: bool):
+    """Weights (V,) on the vertices of the face of a shape that is extreme along `axis`
+    (lowest or highest), reproducing `point` of that face: its barycentric coordinates in
+    a triangle of a fan over the face (an edge's or a vertex's when the face is one)."""
+    projections = jnp.where(mask, vertices @ axis, jnp.inf if lowest else -jnp.inf)
+    extreme = jnp.min(projections) if lowest else jnp.max(projections)
+    scale = jnp.max(jnp.abs(vertices)) + jnp.abs(extreme)
+    on_face = mask & (jnp.abs(projections - extreme) <= 1e3 * jnp.finfo(scale.dtype).eps * scale)
+    size = vertices.shape[0]
+    if vertices.shape[-1] == 2:
+        first, last = jnp.argmax(on_face), size - 1 - jnp.argmax(on_face[::-1])
+        return _segment_weights(vertices, first, last, point)
+    # Order the face's vertices by angle around their centroid, in the face plane.
+    u, v = _plane_basis(axis)
+    weights = on_face.astype(vertices.dtype)
+    centroid = weights @ vertices / jnp.sum(weights)
+    plane = jnp.stack([(vertices - centroid) @ u, (vertices - centroid) @ v], axis=-1)
+    target = jnp.stack([(point - centroid) @ u, (point - centroid) @ v])
+    order = jnp.argsort(jnp.where(on_face, jnp.arctan2(plane[:, 1], plane[:, 0]), jnp.inf))
+    count = jnp.sum(on_face)
+    corner, second, third = order[0], order[1:-1], order[2:]
+    edge1, edge2 = plane[second] - plane[corner], plane[third] - plane[corner]
+    offset = target - plane[corner]
+    area = edge1[:, 0] * edge2[:, 1] - edge1[:, 1] * edge2[:, 0]
+    real = (jnp.arange(2, size) < count) & (jnp.abs(area) > 0)
+    safe_area = jnp.where(real, area, 1.0)
+    beta = (offset[0] * edge2[:, 1] - offset[1] * edge2[:, 0]) / safe_area
+    gamma = (edge1[:, 0] * offset[1] - edge1[:, 1] * offset[0]) / safe_area
+    alpha = 1 - beta - gamma
+    fit = jnp.where(real, jnp.minimum(jnp.minimum(alpha, beta), gamma), -jnp.inf)
+    best = jnp.argmax(fit)
+    coords = jnp.clip(jnp.stack([alpha[best], beta[best], gamma[best]]), 0, None)
+    coords = coords / jnp.sum(coords)
+    corners = jnp.stack([corner, second[best], third[best]])
+    fan = coords @ (corners[:, None] == jnp.arange(size)).astype(vertices.dtype)
+    # A face of one or two vertices (a vertex or an edge) has no triangle.
+    return jnp.where(count >= 3, fan, _segment_weights(vertices, order[0],
+                                                        jnp.where(count >= 2, order[1], order[0]),
+                                                        point))
+
+
+def _touching_witnesses(a: Polytope, b: Polytope, rotation, translation, b_vertices, axis,
+                        distance):
+    """A pair (p in a, q in b) with q - p = distance * axis, in a's frame, given the exact
+    signed distance and its axis (distance >= 0 here: the shapes are apart or touching),
+    and the pair as weights on a's and b's vertices ((V_a,), (V_b,)).
+
+    The closest segment pair serves when its gap is the distance (vertex-edge, vertex-vertex
+    and edge-edge features). Otherwise a vertex of one shape faces a face of the other: its
+    support vertex along the axis, moved across by the distance, lands inside the other shape;
+    whichever of the two constructions lands inside (least outside) is the pair."""
+    point_a, point_b, found, segment_a, segment_b = _closest_segment_pair(a, a.vertices, b,
+                                                                          b_vertices)
+    segment_gap = jnp.sqrt(jnp.sum((point_b - point_a) ** 2))
+    scale = jnp.max(jnp.abs(a.vertices)) + jnp.max(jnp.abs(b_vertices)) + distance
+    tolerance = jnp.sqrt(jnp.finfo(distance.dtype).eps) * scale
+    index_a = jnp.argmax(jnp.where(a.vertex_mask, a.vertices @ axis, -jnp.inf))
+    index_b = jnp.argmin(jnp.where(b.vertex_mask, b_vertices @ axis, jnp.inf))
+    support_a, support_b = a.vertices[index_a], b_vertices[index_b]
+    onto_b, onto_a = support_a + distance * axis, support_b - distance * axis
+    to_b_frame = lambda x: _rotate(rotation.T, x - translation)  # noqa: E731
+    a_faces_b = _outside(to_b_frame(onto_b)[None], b) <= _outside(onto_a[None], a)
+    dtype = distance.dtype
+    face_weights_a = jnp.where(a_faces_b, _one_hot(index_a, a.vertices.shape[0], dtype),
+                               _face_weights(a.vertices, a.vertex_mask, axis, onto_a, False))
+    face_weights_b = jnp.where(a_faces_b,
+                               _face_weights(b_vertices, b.vertex_mask, axis, onto_b, True),
+                               _one_hot(index_b, b.vertices.shape[0], dtype))
+    use_segments = found & (segment_gap <= distance + tolerance)
+    pick = lambda x, y: jnp.where(use_segments, x, y)  # noqa: E731
+    return (pick(point_a, jnp.where(a_faces_b, support_a, onto_a)),
+            pick(point_b, jnp.where(a_faces_b, onto_b, support_b)),
+            pick(segment_a, face_weights_a), pick(segment_b, face_weights_b))
+
+
+def _witnesses(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
+    """Values only, in a's frame: signed distance, axis, witness points (b's moved back) and
+    their weights on the vertices.
+
+    Overlapping: move b out along the axis until the shapes touch, find the touching points
+    there, and move b's point back (b's weights need no change: the move is a translation).
+    Apart: the move is zero."""
+    gaps, axes, b_vertices = _exact_parts(a, pose_a, b, pose_b)
+    distance = jnp.max(gaps)
+    axis = axes[jnp.argmax(gaps)]
+    shift = jnp.maximum(-distance, 0.0) * axis
+    rotation, translation = _relative_pose(pose_a, pose_b)
+    point_a, point_b, weights_a, weights_b = _touching_witnesses(
+        a, b, rotation, translation + shift, b_vertices + shift, axis, jnp.maximum(distance, 0))
+    return distance, axis, point_a, point_b - shift, weights_a, weights_b
 
 
 def _exact_signed_distance(a, pose_a, b, pose_b) -> jax.Array:
-    gaps, _, _, _ = _exact_parts(a, pose_a, b, pose_b)
-    return jnp.max(gaps)
+    """The exact value, with the derivative of the witness pair's gap along the axis.
+
+    By the envelope theorem for sd = max over axes u of min over points p in a, q in b of
+    u.(q - p), with the points written as weights on the vertices (sets that do not move with
+    the poses or vertices), the derivative is that of u.(q - p) at the saddle point: axis and
+    weights held fixed. Holding only the axis fixed is not enough: along a face normal the
+    face's vertices tie, and the one a min picks does not move like the witness point."""
+    frozen = jax.lax.stop_gradient((a, pose_a, b, pose_b))
+    distance, axis, _, _, weights_a, weights_b = _witnesses(*frozen)
+    rotation, translation = _relative_pose(pose_a, pose_b)
+    b_vertices = _rotate(rotation, b.vertices) + translation
+    gap = axis @ (weights_b @ b_vertices - weights_a @ a.vertices)
+    return distance + (gap - jax.lax.stop_gradient(gap))
 
 
 def _check_smoothing(smoothing):
@@ -184,9 +323,11 @@ def signed_distance(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
 
     Returns:
       () float in the common dtype of the inputs. Gradients with respect to poses and to
-      `Polytope.vertices` are finite everywhere; with respect to vertices the stored face
-      normals and edge directions are held fixed (for the exact value that is the true
-      derivative wherever it exists, by Danskin's theorem).
+      `Polytope.vertices` are finite everywhere. The exact gradient is the derivative of the
+      witness pair's gap (envelope theorem): the true derivative wherever one exists, with
+      respect to vertices that of the distance between the hulls of the moved vertices (as
+      if the shape were rebuilt). The smooth value reads the stored face normals and edge
+      directions as constants, so its vertex gradient holds them fixed.
     """
     _check_pair(a, pose_a, b, pose_b)
     smoothing = _check_smoothing(smoothing)
@@ -206,30 +347,6 @@ def _outside(points, shape: Polytope):
     return _masked_extreme(violation, shape.face_mask, lowest=False).reshape(points.shape[:-1])
 
 
-def _touching_witnesses(a: Polytope, b: Polytope, rotation, translation, b_vertices, axis,
-                        distance):
-    """A pair (p in a, q in b) with q - p = distance * axis, in a's frame, given the exact
-    signed distance and its axis (distance >= 0 here: the shapes are apart or touching).
-
-    The closest segment pair serves when its gap is the distance (vertex-edge, vertex-vertex
-    and edge-edge features). Otherwise a vertex of one shape faces a face of the other: its
-    support vertex along the axis, moved across by the distance, lands inside the other shape;
-    whichever of the two constructions lands inside (least outside) is the pair."""
-    point_a, point_b, found = _closest_segment_pair(a, a.vertices, b, b_vertices)
-    segment_gap = jnp.sqrt(jnp.sum((point_b - point_a) ** 2))
-    scale = jnp.max(jnp.abs(a.vertices)) + jnp.max(jnp.abs(b_vertices)) + distance
-    tolerance = jnp.sqrt(jnp.finfo(distance.dtype).eps) * scale
-    support_a = a.vertices[jnp.argmax(jnp.where(a.vertex_mask, a.vertices @ axis, -jnp.inf))]
-    support_b = b_vertices[jnp.argmin(jnp.where(b.vertex_mask, b_vertices @ axis, jnp.inf))]
-    onto_b, onto_a = support_a + distance * axis, support_b - distance * axis
-    to_b_frame = lambda x: _rotate(rotation.T, x - translation)  # noqa: E731
-    a_faces_b = _outside(to_b_frame(onto_b)[None], b) <= _outside(onto_a[None], a)
-    face_a = jnp.where(a_faces_b, support_a, onto_a)
-    face_b = jnp.where(a_faces_b, onto_b, support_b)
-    use_segments = found & (segment_gap <= distance + tolerance)
-    return jnp.where(use_segments, point_a, face_a), jnp.where(use_segments, point_b, face_b)
-
-
 def closest_points(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> ClosestPoints:
     """Exact signed distance with its witness points and axis, for one pair of shapes.
 
@@ -241,16 +358,7 @@ def closest_points(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> Clos
     """
     _check_pair(a, pose_a, b, pose_b)
     a, pose_a, b, pose_b = jax.lax.stop_gradient(_cast_pair(a, pose_a, b, pose_b))
-    gaps, axes, _, b_vertices = _exact_parts(a, pose_a, b, pose_b)
-    distance = jnp.max(gaps)
-    axis = axes[jnp.argmax(gaps)]
-    # Overlapping: move b out along the axis until the shapes touch, find the touching
-    # points there, and move b's point back. Apart: the shift is zero.
-    shift = jnp.maximum(-distance, 0.0) * axis
-    rotation, translation = _relative_pose(pose_a, pose_b)
-    point_a, point_b = _touching_witnesses(a, b, rotation, translation + shift,
-                                           b_vertices + shift, axis, jnp.maximum(distance, 0))
+    distance, axis, point_a, point_b, _, _ = _witnesses(a, pose_a, b, pose_b)
     to_world = lambda x: _rotate(pose_a.rotation, x) + pose_a.translation  # noqa: E731
     return ClosestPoints(signed_distance=distance, point_a=to_world(point_a),
-                         point_b=to_world(point_b - shift),
-                         normal=_rotate(pose_a.rotation, axis))
+                         point_b=to_world(point_b), normal=_rotate(pose_a.rotation, axis))
