@@ -136,13 +136,15 @@ def _closest_segment_pair(a: Polytope, a_vertices, b: Polytope, b_vertices):
     points_a = [o + s * d for o, d in zip(origin_a, delta_a, strict=True)]
     points_b = [o + t * d for o, d in zip(origin_b, delta_b, strict=True)]
     squared = _dot(*([[q - p for p, q in zip(points_a, points_b, strict=True)]] * 2))
-    # Near-ties count as ties: XLA may recompute the squares inside each fusion with other
-    # roundings. A pair within 64 eps of the minimum has a difference vector within
-    # sqrt(64 eps) of the closest one (|d|^2 is strongly convex), which moves the gap along its
-    # axis only to second order; if no entry qualifies, the SAT axis stands in.
+    # Ties within rounding count as ties. The slack is tight because a pair whose square is
+    # within delta of the minimum can still point up to sqrt(delta) away from the closest
+    # pair's direction, and the gap along an axis is only Lipschitz in the axis. A looser
+    # slack serves only if XLA recomputed the squares (inside a fusion) with other roundings
+    # and nothing is within the tight one; if nothing qualifies at all, the SAT axis stands in.
     eps = jnp.finfo(squared.dtype).eps
     smallest = jnp.min(squared)
-    closest = squared <= smallest + 64 * eps * smallest
+    tight = squared <= smallest + 4 * eps * smallest
+    closest = jnp.where(jnp.any(tight), tight, squared <= smallest + 64 * eps * smallest)
     count = jnp.sum(closest)
     safe_count = jnp.maximum(count, 1).astype(squared.dtype)
     share = jnp.where(closest, 1.0, 0.0) / safe_count
@@ -237,28 +239,30 @@ def _touching_witnesses(a: Polytope, b: Polytope, rotation, translation, b_verti
     signed distance and its axis (distance >= 0 here: the shapes are apart or touching),
     and the pair as weights on a's and b's vertices ((V_a,), (V_b,)).
 
-    The closest segment pair serves when its gap is the distance (vertex-edge, vertex-vertex
-    and edge-edge features). Otherwise a vertex of one shape faces a face of the other: its
-    support vertex along the axis, moved across by the distance, lands inside the other shape;
-    whichever of the two constructions lands inside (least outside) is the pair."""
+    Two constructions: the closest segment pair (right for vertex-edge, vertex-vertex and
+    edge-edge features), and a support vertex moved across by the distance onto the other
+    shape's face (right for vertex-face features; of the two senses, the one landing least
+    outside the other shape). The pair that better satisfies q - p = distance * axis wins:
+    its residual is |q - p - distance * axis| for the segments and how far the moved vertex
+    lands outside for the face."""
     point_a, point_b, found, segment_a, segment_b = _closest_segment_pair(a, a.vertices, b,
                                                                           b_vertices)
-    segment_gap = jnp.sqrt(jnp.sum((point_b - point_a) ** 2))
-    scale = jnp.max(jnp.abs(a.vertices)) + jnp.max(jnp.abs(b_vertices)) + distance
-    tolerance = jnp.sqrt(jnp.finfo(distance.dtype).eps) * scale
     index_a = jnp.argmax(jnp.where(a.vertex_mask, a.vertices @ axis, -jnp.inf))
     index_b = jnp.argmin(jnp.where(b.vertex_mask, b_vertices @ axis, jnp.inf))
     support_a, support_b = a.vertices[index_a], b_vertices[index_b]
     onto_b, onto_a = support_a + distance * axis, support_b - distance * axis
     to_b_frame = lambda x: _rotate(rotation.T, x - translation)  # noqa: E731
-    a_faces_b = _outside(to_b_frame(onto_b)[None], b) <= _outside(onto_a[None], a)
+    outside_b, outside_a = _outside(to_b_frame(onto_b)[None], b)[0], _outside(onto_a[None], a)[0]
+    a_faces_b = outside_b <= outside_a
+    face_residual = jnp.maximum(jnp.minimum(outside_a, outside_b), 0.0)
+    segment_residual = jnp.sqrt(jnp.sum((point_b - point_a - distance * axis) ** 2))
     dtype = distance.dtype
     face_weights_a = jnp.where(a_faces_b, _one_hot(index_a, a.vertices.shape[0], dtype),
                                _face_weights(a.vertices, a.vertex_mask, axis, onto_a, False))
     face_weights_b = jnp.where(a_faces_b,
                                _face_weights(b_vertices, b.vertex_mask, axis, onto_b, True),
                                _one_hot(index_b, b.vertices.shape[0], dtype))
-    use_segments = found & (segment_gap <= distance + tolerance)
+    use_segments = found & (segment_residual <= face_residual)
     pick = lambda x, y: jnp.where(use_segments, x, y)  # noqa: E731
     return (pick(point_a, jnp.where(a_faces_b, support_a, onto_a)),
             pick(point_b, jnp.where(a_faces_b, onto_b, support_b)),
