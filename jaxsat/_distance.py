@@ -72,10 +72,13 @@ def _gap(axes, a_vertices, a_mask, b_vertices, b_mask):
 
 def _segment_indices(shape: Polytope):
     """Vertex indices (start, end) of every edge, (K,) each. A 2D polygon's edges join
-    consecutive vertices; padding repeats vertex 0, so padded edges shrink to that point."""
+    consecutive vertices; padding repeats vertex 0, so padded indices are mapped to 0: padded
+    edges shrink to that point, the closing edge ends there, and witness weights (hence
+    gradients) land on the real vertex, never on a padding row."""
     if shape.dim == 2:
         first = jnp.arange(shape.vertices.shape[0])
-        return first, jnp.roll(first, -1)
+        real = lambda index: jnp.where(shape.vertex_mask[index], index, 0)  # noqa: E731
+        return real(first), real(jnp.roll(first, -1))
     return shape.edge_endpoints[:, 0], shape.edge_endpoints[:, 1]
 
 
@@ -83,14 +86,6 @@ def _segments(shape: Polytope, vertices):
     """(start, end) points of every edge, (K, D) each."""
     start, end = _segment_indices(shape)
     return vertices[start], vertices[end]
-
-
-def _vertex_weights(shape: Polytope, start_weights, end_weights):
-    """Per-vertex weights (V,) from weights on every edge's start and end points, (K,) each."""
-    vertices = jnp.arange(shape.vertices.shape[0])
-    start, end = _segment_indices(shape)
-    return (start_weights @ (start[:, None] == vertices).astype(start_weights.dtype)
-            + end_weights @ (end[:, None] == vertices).astype(end_weights.dtype))
 
 
 def _dot(x, y):
@@ -119,53 +114,67 @@ def _segment_parameters(start_a, delta_a, start_b, delta_b):
     return jnp.clip(s, 0.0, 1.0), t
 
 
-def _closest_segment_pair(a: Polytope, a_vertices, b: Polytope, b_vertices):
-    """The closest pair of points over all (edge of a, edge of b) pairs, (D,) each, whether
-    it was found, and the points as weights on a's and b's vertices ((V_a,), (V_b,)).
+def _segment_candidates(a: Polytope, a_vertices, b: Polytope, b_vertices):
+    """Candidate closest pairs from the edges: for every edge of a, its closest pair to any
+    edge of b, and for every edge of b, its closest pair to any edge of a.
 
-    Every coordinate stays a separate (K_a, K_b) array so XLA fuses the whole search. Ties are
-    averaged instead of picked by argmin (slow on CPU): closest pairs of convex sets share one
-    difference vector, so the average of tied pairs is a closest pair too."""
-    start_a, end_a = _segments(a, a_vertices)
-    start_b, end_b = _segments(b, b_vertices)
+    Returns points (C, D) on a and on b and their weights on a's and b's vertices ((C, V_a),
+    (C, V_b)), C = K_a + K_b. Whatever the closest features (vertex-vertex, vertex-edge,
+    edge-edge), the edge holding a closest point in its interior (or any edge at a closest
+    vertex) has the true closest pair as its own minimum; a single global minimum could
+    instead land, within rounding, on a neighbouring pair pointing elsewhere, and the gap
+    along an axis is only Lipschitz in the axis. Within one edge, ties (within rounding) are
+    averaged: pairs on one edge that tie share the closest point of that edge. Every
+    coordinate stays a separate (K_a, K_b) array so XLA fuses the search."""
+    start_a, end_a = _segment_indices(a)
+    start_b, end_b = _segment_indices(b)
     column = lambda x: [x[:, k][:, None] for k in range(a.dim)]  # noqa: E731
     row = lambda x: [x[:, k][None, :] for k in range(a.dim)]  # noqa: E731
-    origin_a, delta_a = column(start_a), column(end_a - start_a)
-    origin_b, delta_b = row(start_b), row(end_b - start_b)
+    origin_a = column(a_vertices[start_a])
+    delta_a = column(a_vertices[end_a] - a_vertices[start_a])
+    origin_b = row(b_vertices[start_b])
+    delta_b = row(b_vertices[end_b] - b_vertices[start_b])
     s, t = _segment_parameters(origin_a, delta_a, origin_b, delta_b)
     points_a = [o + s * d for o, d in zip(origin_a, delta_a, strict=True)]
     points_b = [o + t * d for o, d in zip(origin_b, delta_b, strict=True)]
     squared = _dot(*([[q - p for p, q in zip(points_a, points_b, strict=True)]] * 2))
-    # Ties within rounding count as ties. The slack is tight because a pair whose square is
-    # within delta of the minimum can still point up to sqrt(delta) away from the closest
-    # pair's direction, and the gap along an axis is only Lipschitz in the axis. A looser
-    # slack serves only if XLA recomputed the squares (inside a fusion) with other roundings
-    # and nothing is within the tight one; if nothing qualifies at all, the SAT axis stands in.
     eps = jnp.finfo(squared.dtype).eps
-    smallest = jnp.min(squared)
-    tight = squared <= smallest + 4 * eps * smallest
-    closest = jnp.where(jnp.any(tight), tight, squared <= smallest + 64 * eps * smallest)
-    count = jnp.sum(closest)
-    safe_count = jnp.maximum(count, 1).astype(squared.dtype)
-    share = jnp.where(closest, 1.0, 0.0) / safe_count
-    mean = lambda x: jnp.sum(share * x)  # noqa: E731
-    weights_a = _vertex_weights(a, jnp.sum(share * (1 - s), axis=1), jnp.sum(share * s, axis=1))
-    weights_b = _vertex_weights(b, jnp.sum(share * (1 - t), axis=0), jnp.sum(share * t, axis=0))
-    return (jnp.stack([mean(x) for x in points_a]), jnp.stack([mean(x) for x in points_b]),
-            count > 0, weights_a, weights_b)
+    one_hot = lambda index, size: (index[:, None] == jnp.arange(size)).astype(s.dtype)  # noqa: E731
+    starts_a, ends_a = one_hot(start_a, a.vertices.shape[0]), one_hot(end_a, a.vertices.shape[0])
+    starts_b, ends_b = one_hot(start_b, b.vertices.shape[0]), one_hot(end_b, b.vertices.shape[0])
+    candidates = []
+    for axis in (1, 0):
+        smallest = jnp.min(squared, axis=axis, keepdims=True)
+        # A slack of a few ulps, as XLA may recompute the squares inside a fusion with other
+        # roundings; if nothing qualifies, the candidate is a zero-weight dummy whose zero
+        # direction the SAT axis replaces.
+        share = jnp.where(squared <= smallest + 4 * eps * smallest, 1.0, 0.0).astype(s.dtype)
+        share = share / jnp.maximum(jnp.sum(share, axis=axis, keepdims=True), 1.0)
+        mean = lambda x, ax=axis, w=share: jnp.sum(w * x, axis=ax)  # noqa: E731
+        if axis == 1:  # one candidate per edge of a
+            weights_a = mean(1 - s)[:, None] * starts_a + mean(s)[:, None] * ends_a
+            weights_b = (share * (1 - t)) @ starts_b + (share * t) @ ends_b
+        else:  # one candidate per edge of b
+            weights_a = (share * (1 - s)).T @ starts_a + (share * s).T @ ends_a
+            weights_b = mean(1 - t)[:, None] * starts_b + mean(t)[:, None] * ends_b
+        candidates.append((jnp.stack([mean(x) for x in points_a], axis=-1),
+                           jnp.stack([mean(x) for x in points_b], axis=-1),
+                           weights_a, weights_b))
+    return tuple(jnp.concatenate(parts) for parts in zip(*candidates, strict=True))
 
 
 def _exact_parts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
-    """Values only, in a's frame: the two candidate axes' gaps, the axes, b's vertices."""
+    """Values only, in a's frame: the gaps (C + 1,) along the SAT winner and along every
+    segment candidate's axis, those axes (C + 1, D), and b's vertices."""
     rotation, translation = _relative_pose(pose_a, pose_b)
     b_vertices = _rotate(rotation, b.vertices) + translation
     _, sat_axis = _best_axis(_candidate_groups(a, pose_a, b, pose_b)[0])
-    point_a, point_b, *_ = _closest_segment_pair(a, a.vertices, b, b_vertices)
-    segment_axis, valid = _safe_normalize(point_b - point_a, 0.0)
+    points_a, points_b, _, _ = _segment_candidates(a, a.vertices, b, b_vertices)
+    segment_axes, valid = _safe_normalize(points_b - points_a, 0.0)
     # Touching or crossing edges give no direction; the SAT axis stands in (any unit axis is
     # a lower bound, so the stand-in can never raise the result).
-    segment_axis = jnp.where(valid, segment_axis, sat_axis)
-    axes = jnp.stack([sat_axis, segment_axis])
+    segment_axes = jnp.where(valid[:, None], segment_axes, sat_axis)
+    axes = jnp.concatenate([sat_axis[None], segment_axes])
     gaps = _gap(axes, a.vertices, a.vertex_mask, b_vertices, b.vertex_mask)
     return gaps, axes, b_vertices
 
@@ -245,8 +254,13 @@ def _touching_witnesses(a: Polytope, b: Polytope, rotation, translation, b_verti
     outside the other shape). The pair that better satisfies q - p = distance * axis wins:
     its residual is |q - p - distance * axis| for the segments and how far the moved vertex
     lands outside for the face."""
-    point_a, point_b, found, segment_a, segment_b = _closest_segment_pair(a, a.vertices, b,
-                                                                          b_vertices)
+    points_a, points_b, candidate_a, candidate_b = _segment_candidates(a, a.vertices, b,
+                                                                        b_vertices)
+    residuals = jnp.sum((points_b - points_a - distance * axis) ** 2, axis=-1)
+    residuals = jnp.where(jnp.sum(candidate_a, axis=-1) > 0.5, residuals, jnp.inf)  # dummies
+    best = jnp.argmin(residuals)
+    point_a, point_b = points_a[best], points_b[best]
+    segment_a, segment_b = candidate_a[best], candidate_b[best]
     index_a = jnp.argmax(jnp.where(a.vertex_mask, a.vertices @ axis, -jnp.inf))
     index_b = jnp.argmin(jnp.where(b.vertex_mask, b_vertices @ axis, jnp.inf))
     support_a, support_b = a.vertices[index_a], b_vertices[index_b]
@@ -255,14 +269,14 @@ def _touching_witnesses(a: Polytope, b: Polytope, rotation, translation, b_verti
     outside_b, outside_a = _outside(to_b_frame(onto_b)[None], b)[0], _outside(onto_a[None], a)[0]
     a_faces_b = outside_b <= outside_a
     face_residual = jnp.maximum(jnp.minimum(outside_a, outside_b), 0.0)
-    segment_residual = jnp.sqrt(jnp.sum((point_b - point_a - distance * axis) ** 2))
+    segment_residual = jnp.sqrt(residuals[best])
     dtype = distance.dtype
     face_weights_a = jnp.where(a_faces_b, _one_hot(index_a, a.vertices.shape[0], dtype),
                                _face_weights(a.vertices, a.vertex_mask, axis, onto_a, False))
     face_weights_b = jnp.where(a_faces_b,
                                _face_weights(b_vertices, b.vertex_mask, axis, onto_b, True),
                                _one_hot(index_b, b.vertices.shape[0], dtype))
-    use_segments = found & (segment_residual <= face_residual)
+    use_segments = segment_residual <= face_residual
     pick = lambda x, y: jnp.where(use_segments, x, y)  # noqa: E731
     return (pick(point_a, jnp.where(a_faces_b, support_a, onto_a)),
             pick(point_b, jnp.where(a_faces_b, onto_b, support_b)),
@@ -323,7 +337,8 @@ def signed_distance(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
         shapes are apart, minus the exact penetration depth when they overlap. tau > 0 gives
         a smooth approximation (continuous gradients in poses and vertices) that satisfies
         |smooth - exact| <= smoothing_error_bound(a, b) * tau; see `smoothing_error_bound`
-        for how to pick tau. A traced tau always takes the smooth path.
+        for how to pick tau. A traced tau always takes the smooth path, floored at a few ulps
+        of the shapes' size (so a traced 0 gives the exact value up to rounding, not NaN).
 
     Returns:
       () float in the common dtype of the inputs. Gradients with respect to poses and to

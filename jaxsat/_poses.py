@@ -44,8 +44,14 @@ class Pose:
         return cls(jnp.zeros(dim, dtype), jnp.eye(dim, dtype=dtype))
 
     def apply(self, points: jax.Array) -> jax.Array:
-        """Map (..., D) local points to world coordinates."""
-        return points @ self.rotation.T + self.translation
+        """Map local points to world coordinates.
+
+        A single pose maps (..., D) points. A batch of poses (batch shape S) maps (*S, N, D)
+        points, or (N, D) points shared by the whole batch, each through its own pose."""
+        if self.rotation.ndim == 2:
+            return points @ self.rotation.T + self.translation
+        rotation_t = jnp.swapaxes(self.rotation, -1, -2)
+        return jnp.matmul(points, rotation_t) + self.translation[..., None, :]
 
     def inverse(self) -> Pose:
         """The pose taking world coordinates back to local ones."""

@@ -160,6 +160,10 @@ def _smooth_signed_distance(a, pose_a, b, pose_b, tau) -> jax.Array:
     scale = jax.lax.stop_gradient(_radius(a.vertices, a.vertex_mask)
                                   + _radius(b_vertices, b.vertex_mask))
     a_vertices, b_vertices, tau = a.vertices / scale, b_vertices / scale, tau / scale
+    # A traced tau can be 0 (or negative): floor it at a few ulps of the size, which makes the
+    # value the exact one up to rounding instead of 0/0 (double where: no NaN in gradients).
+    floor = 16 * jnp.finfo(tau.dtype).eps
+    tau = jnp.where(tau > floor, tau, floor)
     a = _with_vertices(a, a_vertices)
     radius = _radius(a_vertices, a.vertex_mask) + _radius(b_vertices, b.vertex_mask)
     axes, gates = _candidates(a, b, b_vertices, rotation, tau, radius)

@@ -282,3 +282,16 @@ def test_identity_rejects_bad_dimension():
     for dim in (0, 1, 4):
         with pytest.raises(ValueError, match="dim"):
             jaxsat.Pose.identity(dim)
+
+
+def test_apply_on_a_batch_of_poses_maps_each_through_its_own_pose():
+    """Regression: `.T` on a (N, D, D) rotation stack reversed every axis instead of
+    transposing each matrix, and batched poses mapped points to garbage without an error."""
+    import jaxsat
+
+    poses = jax.vmap(jaxsat.pose2)(jnp.array([0.0, 1.0]), jnp.zeros(2), jnp.array([0.0, 1.0]))
+    shared = jnp.array([[1.0, 0.0], [0.0, 2.0]])
+    per_pose = jax.vmap(lambda pose: pose.apply(shared))(poses)
+    np.testing.assert_allclose(poses.apply(shared), per_pose, atol=1e-12)
+    np.testing.assert_allclose(poses.apply(jnp.stack([shared, shared])), per_pose, atol=1e-12)
+    np.testing.assert_allclose(per_pose[1, 0], [1.0 + np.cos(1.0), np.sin(1.0)], atol=1e-12)
