@@ -1,0 +1,706 @@
+"""Tests for the smooth signed distance (smoothing=tau > 0) and jaxsat.smoothing_error_bound.
+
+Exact references come from the independent oracle (`oracle.py`), never from jaxsat's exact
+path. Shapes, pairs and the batched runner are shared with `test_distance.py`. Every batched
+function is jitted once and called in chunks of BATCH pairs, with tau a batched argument, so
+that each size class compiles once for every tau. Finite-difference gradients re-evaluate
+the same compiled value function on perturbed inputs (shapes keep their stored face normals
+and edge directions, as the documented vertex gradient does).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import oracle
+import pytest
+from scipy.spatial.transform import Rotation
+from test_distance import (
+    BATCH,
+    IDENTITY,
+    Pairs,
+    hand_built_pairs,
+    hand_pool,
+    make_pool,
+    make_pose,
+    pool,
+    quaternion,
+    quaternion_product,
+    random_pairs,
+    references,
+    run_batched,
+    take,
+)
+
+import jaxsat
+
+# --------------------------------------------------------------------------------------------
+# The smooth value as a function of vertices and pose parameters, batched and jitted.
+# --------------------------------------------------------------------------------------------
+
+
+def _smooth(vertices_a, params_a, vertices_b, params_b, a, b, tau):
+    """Smooth signed distance with the shapes' vertices and the pose parameters as inputs
+    (a Polytope also holds boolean masks, so gradients go through its vertices only)."""
+    a = dataclasses.replace(a, vertices=vertices_a)
+    b = dataclasses.replace(b, vertices=vertices_b)
+    return jaxsat.signed_distance(a, make_pose(params_a), b, make_pose(params_b), smoothing=tau)
+
+
+smooth_batch = jax.jit(jax.vmap(_smooth))
+reverse_batch = jax.jit(jax.vmap(jax.jacrev(_smooth, argnums=(0, 1, 2, 3))))
+forward_batch = jax.jit(jax.vmap(jax.jacfwd(_smooth, argnums=(0, 1, 2, 3))))
+
+
+def smooth_inputs(pairs: Pairs, taus):
+    """The batched arguments of `_smooth` for `pairs` and per-pair taus."""
+    a, params_a, b, params_b = pairs.inputs()
+    return (np.asarray(a.vertices), params_a, np.asarray(b.vertices), params_b, a, b,
+            np.asarray(taus, pairs.dtype))
+
+
+def smooth_values(pairs: Pairs, taus) -> np.ndarray:
+    values = run_batched(smooth_batch, len(pairs), *smooth_inputs(pairs, taus))
+    assert values.dtype == pairs.dtype
+    return values
+
+
+def sizes_of(refs) -> np.ndarray:
+    return np.array([r.size for r in refs])
+
+
+def exact_values(refs) -> np.ndarray:
+    return np.array([r.value for r in refs])
+
+
+bound_of = jax.jit(jaxsat.smoothing_error_bound)
+"""Jitted: eager calls compile every primitive anew for each new combination of shapes."""
+
+
+def bounds(pairs: Pairs) -> np.ndarray:
+    a, _, b, _ = pairs.inputs()
+    return np.asarray(bound_of(a, b))
+
+
+def repeat(pairs: Pairs, times: int) -> Pairs:
+    """Each pair `times` times in a row (one per tau)."""
+    return pairs.subset(np.repeat(np.arange(len(pairs)), times))
+
+
+# --------------------------------------------------------------------------------------------
+# The error bound |smooth - exact| <= smoothing_error_bound(a, b) * tau.
+# --------------------------------------------------------------------------------------------
+
+TAU_FACTORS = np.array([1e-3, 1e-2, 1e-1, 0.5])
+"""tau relative to the pair's size (the larger bounding radius)."""
+
+
+def check_within_bound(pairs: Pairs, tau_factors=TAU_FACTORS, refs=None) -> np.ndarray:
+    """Every pair at every tau = factor * size: |smooth - oracle| <= bound * tau (plus float64
+    round-off). Returns |error| / (bound * tau), (pairs, taus)."""
+    refs = references(pairs) if refs is None else refs
+    count, per = len(pairs), len(tau_factors)
+    size = np.repeat(sizes_of(refs), per)
+    taus = np.tile(tau_factors, count) * size
+    errors = smooth_values(repeat(pairs, per), taus) - np.repeat(exact_values(refs), per)
+    limit = np.repeat(bounds(pairs), per) * taus
+    worst = int(np.argmax(np.abs(errors) - limit))
+    assert np.all(np.abs(errors) <= limit + 1e-9 * size), (
+        f"pair {worst // per}: error {errors[worst]!r} above {limit[worst]!r} "
+        f"at tau {taus[worst]!r}")
+    return (np.abs(errors) / limit).reshape(count, per)
+
+
+BOUND_CASES = [("poly8", 1.0), ("box", 1.0), ("hull8", 1.0), ("poly8", 1e-3), ("hull8", 1e3)]
+
+
+@pytest.mark.parametrize(("name", "scale"), BOUND_CASES,
+                         ids=[f"{n}-{s:g}" for n, s in BOUND_CASES])
+def test_error_within_bound(name, scale):
+    """Random pairs (8-gons and smaller polygons, boxes, hulls of 8 points), apart and
+    overlapping, every tau of the sweep: within the bound."""
+    rng = np.random.default_rng([51, len(name), int(np.log10(scale)) + 3])
+    shapes = make_pool(name, np.float64, rng, scale=scale, size=8)
+    pairs = random_pairs(shapes, shapes, 48, rng, np.float64, scale=scale)
+    refs = references(pairs)
+    overlapping = np.array([r.depth > 0 for r in refs])
+    assert 0.1 < overlapping.mean() < 0.9
+    ratio = check_within_bound(pairs, refs=refs)
+    # The bound is not vacuous: the smoothing really moves the value, by a sizeable fraction
+    # of what the bound allows.
+    assert np.max(ratio) > 0.05
+
+
+@pytest.mark.parametrize(("dim", "label"), [(2, "padded"), (3, "padded"), (3, "box")])
+def test_error_within_bound_on_ties(dim, label):
+    """The hand-built contacts of test_distance (vertex-vertex, vertex-edge, edge-edge,
+    face-face, ...) and the same shapes overlapping (negative gaps), where many vertices and
+    axes tie exactly: the worst cases for log-sum-exp. The oracle checks the analytic values."""
+    pairs, entries = hand_built_pairs(dim, label, (-0.3, -0.01, 1e-6, 1e-2, 0.3), motions=1)
+    refs = references(pairs)
+    for (_, s, case, _), ref in zip(entries, refs, strict=True):
+        if s > 0:
+            assert ref.value == pytest.approx(case.value, abs=1e-12)
+    check_within_bound(pairs, refs=refs)
+
+
+def test_identical_shapes_at_identical_poses():
+    """Each shape against itself at one pose: every face normal ties for the deepest axis."""
+    rng = np.random.default_rng(52)
+    for name in ("poly8", "box", "hull8"):
+        shapes = pool(name, np.float64)
+        pairs = random_pairs(shapes, shapes, 16, rng, np.float64, distance=(0.0, 0.0))
+        pairs = dataclasses.replace(pairs, index_b=pairs.index_a, params_b=pairs.params_a)
+        refs = references(pairs)
+        assert all(r.depth > 0 for r in refs)
+        check_within_bound(pairs, refs=refs)
+
+
+# Delicate configurations, built in the poly8 (2D) and box (3D) size classes. a is the square
+# or cube [-1, 1]^D at the identity (optionally moved with b by a common rigid motion).
+
+_SQUARE = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)
+_CUBE = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+_CORNER_POLYGON = np.array([[0.0, 0.0], [1.0, 0.3], [0.8, 1.1], [0.2, 0.9]])
+"""A quadrilateral whose vertex 0 is its unique lowest point along (1, 1)."""
+
+
+def _delicate_2d(s: float):
+    """{name: (b, b's raw points, b's pose parameters, exact value or None)}: b apart by s
+    (s < 0: overlapping by -s) through one feature pair."""
+    half = 0.5 * _SQUARE
+    small = jaxsat.box([0.5, 0.5], max_vertices=8)
+    corner = _CORNER_POLYGON
+    return {
+        # Vertex to vertex: b's corner s away from a's corner along the diagonal.
+        "vertex-vertex": (jaxsat.polygon(corner, 8), corner,
+                          (1.0 + s / np.sqrt(2), 1.0 + s / np.sqrt(2), 0.0), s),
+        # Corner to corner with every edge parallel (two axes tie, four vertices nearly so).
+        "corner-corner": (small, half, (1.5 + s / np.sqrt(2), 1.5 + s / np.sqrt(2), 0.0), s),
+        # Edge on edge (face-face in 2D), overlapping in x.
+        "edge-edge": (small, half, (0.3, 1.5 + s, 0.0), s),
+        # The same flush with a's corner: two vertex pairs coincide at s = 0.
+        "flush": (small, half, (0.5, 1.5 + s, 0.0), s),
+        # Edge on edge, nearly parallel (tilted by 1e-7).
+        "tilted": (small, half, (0.3, 1.5 + s, 1e-7), None),
+    }
+
+
+_YZ = np.array([0.0, 1.0, 1.0]) / np.sqrt(2)
+_CROSSING = np.roll(Rotation.from_matrix(
+    np.array([[0.0, 1.0, -1.0], [0.0, 1.0, 1.0], [np.sqrt(2), 0.0, 0.0]]).T / np.sqrt(2)
+    @ np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, -1.0, 1.0]]) / np.array(
+        [[1.0], [np.sqrt(2)], [np.sqrt(2)]])).as_quat(), 1)
+"""(w, x, y, z) of the rotation taking x to (0, 1, -1) / sqrt 2 and (0, 1, 1) to itself."""
+
+
+def _delicate_3d(s: float):
+    """As `_delicate_2d`, for unpadded boxes."""
+    half = 0.5 * _CUBE
+    small = jaxsat.box([0.5, 0.5, 0.5])
+    diagonal = np.ones(3) / np.sqrt(3)
+    # Turning b about the diagonal through its corner keeps that corner b's lowest point.
+    about_diagonal = quaternion(diagonal, 0.4)
+    return {
+        "vertex-vertex": (small, half, (np.ones(3) + (s + 0.5 * np.sqrt(3)) * diagonal,
+                                        about_diagonal), s),
+        "corner-corner": (small, half, (np.full(3, 1.5) + s * diagonal, IDENTITY), s),
+        "face-face": (small, half, (np.array([0.3, 0.2, 1.5 + s]), IDENTITY), s),
+        "face-face-flush": (small, half, (np.array([0.5, 0.5, 1.5 + s]), IDENTITY), s),
+        # Edge along x on a's edge along x (parallel edges, every cross product vanishes).
+        "edge-edge-parallel": (small, half,
+                               (np.array([0.2, 1.5, 1.5]) + s * np.array([0, 1, 1]) / np.sqrt(2),
+                                IDENTITY), s),
+        # The same with b's edges turned by 1e-7 and by 1e-3 about z: nearly parallel.
+        "edge-edge-1e-7": (small, half, (np.array([0.2, 1.5 + s, 1.5 + s]),
+                                         quaternion([0, 0, 1], 1e-7)), None),
+        "edge-edge-1e-3": (small, half, (np.array([0.2, 1.5 + s, 1.5 + s]),
+                                         quaternion([0, 0, 1], 1e-3)), None),
+        # b's edge along (0, 1, -1) crossing a's edge along x at (0, 1, 1) + s (0, 1, 1) / sqrt 2
+        # at a right angle, b's edge-on cross-section pointing at it.
+        "edge-edge-crossing": (small, half,
+                               (np.array([0.0, 1.0, 1.0]) + (s + 0.5 * np.sqrt(2)) * _YZ,
+                                _CROSSING), s),
+    }
+
+
+def delicate_pairs(dim: int, gaps, motion=None):
+    """Every delicate case at every gap; `motion` (2D (turn, shift), 3D (quaternion, shift))
+    moves both shapes. Returns (pairs, names, gaps, analytic values)."""
+    if dim == 2:
+        unit = (jaxsat.box([1.0, 1.0], max_vertices=8), _SQUARE)
+        cases = _delicate_2d
+    else:
+        unit = (jaxsat.box([1.0, 1.0, 1.0]), _CUBE)
+        cases = _delicate_3d
+    shapes_b, params_a, params_b, names, used, values = [], [], [], [], [], []
+    for s in gaps:
+        for name, (shape, points, params, value) in cases(s).items():
+            if dim == 2:
+                turn, shift = motion if motion is not None else (0.0, np.zeros(2))
+                position = oracle.rotation_2d(turn) @ np.array(params[:2]) + shift
+                params_a.append((shift[0], shift[1], turn))
+                params_b.append((position[0], position[1], params[2] + turn))
+            else:
+                turn, shift = motion if motion is not None else (IDENTITY, np.zeros(3))
+                params_a.append((shift, turn))
+                params_b.append((oracle.rotation_3d(turn) @ params[0] + shift,
+                                 quaternion_product(turn, params[1])))
+            shapes_b.append((shape, points))
+            names.append(name)
+            used.append(s)
+            values.append(value)
+    count = len(names)
+    column = lambda side, k: np.array([p[k] for p in side], np.float64)  # noqa: E731
+    width = 3 if dim == 2 else 2
+    pairs = Pairs(hand_pool(dim, [unit]), hand_pool(dim, shapes_b), np.zeros(count, int),
+                  np.arange(count), tuple(column(params_a, k) for k in range(width)),
+                  tuple(column(params_b, k) for k in range(width)), np.float64)
+    return pairs, names, np.array(used), values
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_error_within_bound_near_degenerate(dim):
+    """Vertex-vertex nearly touching, face-face touching and flush, (nearly) parallel and
+    crossing edges, apart by 1e-3 tau, touching, and overlapping by 1e-3 tau, at every tau
+    (the gap follows tau, so the features sit well inside every gate radius), also under a
+    common rigid motion."""
+    motion = ((0.7, np.array([0.3, -1.2])) if dim == 2
+              else (np.array([0.9, -0.2, 0.4, 0.3]), np.array([0.3, -1.2, 0.5])))
+    for factor in TAU_FACTORS:
+        tau = factor * 1.8  # about the pairs' size (the cube's bounding radius is sqrt(3))
+        for moved in (None, motion):
+            pairs, names, gaps, values = delicate_pairs(dim, (1e-3 * tau, 0.0, -1e-3 * tau),
+                                                        moved)
+            refs = references(pairs)
+            for name, s, value, ref in zip(names, gaps, values, refs, strict=True):
+                if value is not None and s >= 0:
+                    assert ref.value == pytest.approx(value, abs=1e-12), name
+                elif value is not None:
+                    assert s - 1e-12 <= ref.value < 0, name
+            check_within_bound(pairs, np.array([tau]) / sizes_of(refs)[0], refs=refs)
+
+
+def test_convergence_as_tau_shrinks():
+    """The largest error over many pairs falls linearly with tau: from tau = 1e-2 size to
+    1e-4 size it shrinks by more than 20 (0.05), and each decade by a factor of at least 3;
+    and every error stays within the bound."""
+    rng = np.random.default_rng(53)
+    factors = np.array([1e-1, 1e-2, 1e-3, 1e-4, 1e-5])
+    for name in ("poly8", "box", "hull8"):
+        shapes = pool(name, np.float64)
+        pairs = random_pairs(shapes, shapes, 32, rng, np.float64)
+        refs = references(pairs)
+        ratio = check_within_bound(pairs, factors, refs=refs)
+        errors = ratio * bounds(pairs)[:, None] * factors[None, :]  # |error| / size
+        worst = np.max(errors, axis=0)
+        assert worst[0] > 1e-3, worst  # the smoothing is visible at tau = 0.1 size
+        assert worst[3] < 0.05 * worst[1], worst
+        assert np.all(worst[1:] <= worst[:-1] / 3 + 1e-12), worst
+
+
+def test_scale_covariance():
+    """Scaling shapes, positions and tau by k scales the smooth value by k."""
+    values = []
+    for scale in (1e-3, 1.0, 1e3):
+        rng = np.random.default_rng(54)  # the same draws at every scale
+        shapes = make_pool("hull8", np.float64, rng, scale=scale, size=6)
+        pairs = random_pairs(shapes, shapes, 32, rng, np.float64, scale=scale)
+        values.append(smooth_values(pairs, np.full(32, 0.05 * scale)) / scale)
+    np.testing.assert_allclose(values[0], values[1], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(values[2], values[1], rtol=1e-9, atol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# Gradients: central finite differences, forward mode against reverse mode.
+# --------------------------------------------------------------------------------------------
+
+FD_STEP = 1e-6
+
+
+def _flat(tree_leaves) -> np.ndarray:
+    return np.concatenate([np.ravel(x) for x in tree_leaves])
+
+
+def _split(vector: np.ndarray, template):
+    """A flat vector back into arrays shaped like the leaves of `template` (a list)."""
+    pieces, start = [], 0
+    for leaf in template:
+        size = int(np.prod(np.shape(leaf)))
+        pieces.append(vector[start:start + size].reshape(np.shape(leaf)))
+        start += size
+    return pieces
+
+
+def check_finite_differences(pairs: Pairs, taus, rng: np.random.Generator, label="",
+                             step=FD_STEP, tolerance=1e-6):
+    """The reverse-mode gradient of the smooth value with respect to (vertices of a, pose
+    parameters of a, vertices of b, pose parameters of b) against central finite differences
+    (float64): along every pose parameter (pose2 x, y, angle; pose3 translation and
+    quaternion components) and along random unit directions in the vertices of a, in those
+    of b, and in everything at once: |fd - g.d| <= tolerance max(1, |g.d|). Padding vertices
+    get exactly zero gradient. Returns the largest |g.d|."""
+    inputs = smooth_inputs(pairs, taus)
+    gradients = run_batched(reverse_batch, len(pairs), *inputs)
+    count, nparams = len(pairs), len(inputs[1])
+
+    def leaves(tree, i):
+        vertices_a, params_a, vertices_b, params_b = tree[:4]
+        return [vertices_a[i], *(p[i] for p in params_a), vertices_b[i],
+                *(p[i] for p in params_b)]
+
+    template = leaves(inputs, 0)
+    sizes = [int(np.prod(np.shape(x))) for x in template]
+    size = sum(sizes)
+    starts = np.cumsum([0, *sizes])
+    block_a = np.arange(starts[0], starts[1])  # vertices of a
+    block_b = np.arange(starts[1 + nparams], starts[2 + nparams])  # vertices of b
+    pose = np.setdiff1d(np.arange(size), np.concatenate([block_a, block_b]))
+    directions = [np.eye(size)[k] for k in pose]
+    for block in (block_a, block_b, np.arange(size)):
+        direction = np.zeros(size)
+        direction[block] = rng.normal(size=len(block))
+        directions.append(direction / np.linalg.norm(direction))
+    directions = np.array(directions)
+    ndir = len(directions)
+    perturbed = []
+    for i in range(count):
+        flat = _flat(leaves(inputs, i))
+        for direction in directions:
+            perturbed += [flat + step * direction, flat - step * direction]
+    owners = np.repeat(np.arange(count), 2 * ndir)
+    pieces = [_split(v, template) for v in perturbed]
+    stacked = [np.stack([p[j] for p in pieces]) for j in range(len(template))]
+    fd_inputs = (stacked[0], tuple(stacked[1:1 + nparams]), stacked[1 + nparams],
+                 tuple(stacked[2 + nparams:]), take(inputs[4], owners), take(inputs[5], owners),
+                 inputs[6][owners])
+    values = run_batched(smooth_batch, len(perturbed), *fd_inputs).reshape(count, ndir, 2)
+    finite = (values[..., 0] - values[..., 1]) / (2 * step)
+    analytic = np.stack([_flat(leaves(gradients, i)) for i in range(count)]) @ directions.T
+    assert np.all(np.isfinite(analytic)), label
+    error = np.abs(finite - analytic) / np.maximum(1.0, np.abs(analytic))
+    worst = np.unravel_index(np.argmax(error), error.shape)
+    assert np.max(error) <= tolerance, (f"{label} pair {worst[0]} direction {worst[1]}: finite "
+                                   f"difference {finite[worst]!r}, gradient {analytic[worst]!r}")
+    # Padding vertices do not take part: zero gradient.
+    a, _, b, _ = pairs.inputs()
+    for gradient, mask in ((gradients[0], a.vertex_mask), (gradients[2], b.vertex_mask)):
+        assert np.all(gradient[~np.asarray(mask)] == 0.0), label
+    return np.max(np.abs(analytic))
+
+
+FD_CLASSES = ["poly8", "box"]
+"""Each compiles its own gradient (hull8 would cost as much as both together)."""
+
+
+@pytest.mark.parametrize("name", FD_CLASSES)
+def test_gradients_match_finite_differences(name):
+    """Random pairs, apart and overlapping, tau = 0.01, 0.05 and 0.2 size (padded polygons
+    included in 2D)."""
+    rng = np.random.default_rng([55, len(name)])
+    shapes = pool(name, np.float64)
+    pairs = random_pairs(shapes, shapes, 24, rng, np.float64, distance=(0.0, 2.0))
+    refs = references(pairs)
+    overlapping = np.array([r.depth > 0 for r in refs])
+    assert 0.1 < overlapping.mean() < 0.9
+    taus = np.array([0.01, 0.05, 0.2])[np.arange(len(pairs)) % 3] * sizes_of(refs)
+    assert check_finite_differences(pairs, taus, rng, name) > 0.1  # not trivially zero
+    if name == "poly8":
+        a, _, b, _ = pairs.inputs()
+        assert not np.all(a.vertex_mask) and not np.all(b.vertex_mask)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_gradients_match_finite_differences_at_degenerate_configurations(dim):
+    """Identical shapes at identical poses (every face axis ties, every vertex pair of a
+    vertex with itself vanishes), face-face touching and flush, vertex-vertex touching,
+    parallel and crossing edges touching (every cross product of parallel edges vanishes),
+    touching exactly and apart or overlapping by 1e-3 tau, at the identity and under a
+    common rigid motion."""
+    rng = np.random.default_rng([61, dim])
+    name = "poly8" if dim == 2 else "box"
+    shapes = pool(name, np.float64)
+    identical = random_pairs(shapes, shapes, 6, rng, np.float64, distance=(0.0, 0.0))
+    identical = dataclasses.replace(identical, index_b=identical.index_a,
+                                    params_b=identical.params_a)
+    motion = ((0.7, np.array([0.3, -1.2])) if dim == 2
+              else (np.array([0.9, -0.2, 0.4, 0.3]), np.array([0.3, -1.2, 0.5])))
+    for tau in (0.05, 0.2):
+        for moved in (None, motion):
+            pairs, names, _, _ = delicate_pairs(dim, (0.0, 1e-3 * tau, -1e-3 * tau), moved)
+            label = f"{dim}D tau {tau}{' moved' if moved else ''}"
+            # Edges turned by 1e-3 are nearly parallel, but their cross product is longer
+            # than the gate radius: its direction turns at a rate 1 / sine, so the value's
+            # curvature there is of order 1 / sine^2 (about 1e5 at tau = 0.05), and a step
+            # of 1e-6 leaves a truncation error of 6e-4. A smaller step resolves it.
+            curved = np.array([name == "edge-edge-1e-3" for name in names])
+            check_finite_differences(pairs.subset(~curved), np.full(np.sum(~curved), tau),
+                                     rng, label)
+            if curved.any():
+                check_finite_differences(pairs.subset(curved), np.full(np.sum(curved), tau),
+                                         rng, label + " nearly parallel", step=3e-8,
+                                         tolerance=1e-5)
+        check_finite_differences(identical, np.full(len(identical), tau), rng, "identical")
+
+
+def test_forward_mode_matches_reverse_mode():
+    """jacfwd and jacrev of the smooth value agree (vertices and pose parameters), at random
+    and at degenerate configurations."""
+    rng = np.random.default_rng(56)
+    shapes = pool("poly8", np.float64)
+    pairs = random_pairs(shapes, shapes, 32, rng, np.float64)
+    delicate, _, _, _ = delicate_pairs(2, (0.0, 1e-4))
+    for group in (pairs, delicate):
+        inputs = smooth_inputs(group, np.full(len(group), 0.1))
+        forward = run_batched(forward_batch, len(group), *inputs)
+        reverse = run_batched(reverse_batch, len(group), *inputs)
+        for f, r in zip(jax.tree.leaves(forward), jax.tree.leaves(reverse), strict=True):
+            assert np.all(np.isfinite(f))
+            np.testing.assert_allclose(f, r, rtol=1e-10, atol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# Continuity through switches of the exact winning axis.
+# --------------------------------------------------------------------------------------------
+
+
+def _path_pairs(shape_a, points_a, shape_b, points_b, params_a, params_b) -> Pairs:
+    count = len(params_b[0])
+    return Pairs(hand_pool(shape_a.dim, [(shape_a, points_a)]),
+                 hand_pool(shape_b.dim, [(shape_b, points_b)]), np.zeros(count, int),
+                 np.zeros(count, int), params_a, params_b, np.float64)
+
+
+def _check_smooth_along(pairs: Pairs, step: float, tau: float):
+    """Along a path sampled every `step` (a unit-speed motion of b across a switch of the
+    exact winning axis, over several tau): the slope of the oracle's exact value along the
+    path jumps (a kink, the exact gradient is discontinuous), while the smooth value's slope
+    and its whole gradient in the pose parameters change by at most a few step / tau per
+    step, and by far less than the exact slope jumps."""
+    refs = references(pairs)
+    exact = exact_values(refs)
+    inputs = smooth_inputs(pairs, np.full(len(pairs), tau))
+    values = run_batched(smooth_batch, len(pairs), *inputs)
+    gradients = run_batched(reverse_batch, len(pairs), *inputs)
+    pose_gradient = np.concatenate([np.reshape(g, (len(pairs), -1))
+                                    for g in (*gradients[1], *gradients[3])], axis=1)
+    exact_jump = np.max(np.abs(np.diff(exact, 2))) / step
+    smooth_jump = np.max(np.abs(np.diff(values, 2))) / step
+    gradient_jump = np.max(np.abs(np.diff(pose_gradient, axis=0)))
+    assert np.max(np.abs(np.diff(values))) <= 2.0 * step
+    assert exact_jump > 0.2, exact_jump
+    assert smooth_jump <= step / tau, smooth_jump
+    assert smooth_jump <= 0.1 * exact_jump, (smooth_jump, exact_jump)
+    assert gradient_jump <= 3.0 * step / tau, gradient_jump
+    assert np.all(np.abs(values - exact) <= bounds(pairs) * tau + 1e-12)
+    return values, exact
+
+
+def test_continuity_through_axis_switch_2d():
+    """A small square slides through a big one near its top edge; the exact value
+    -min(0.8, 1.5 - |x|) switches from the x axis to the y axis at |x| = 0.7 (a kink);
+    the smooth value and its gradient stay continuous across it."""
+    step, tau = 1e-3, 0.01
+    x = 0.7 + step * (np.arange(BATCH) - BATCH // 2)
+    zeros = np.zeros(BATCH)
+    pairs = _path_pairs(jaxsat.box([1.0, 1.0], max_vertices=8), _SQUARE,
+                        jaxsat.box([0.5, 0.5], max_vertices=8), 0.5 * _SQUARE,
+                        (zeros, zeros, zeros), (x, np.full(BATCH, 0.7), zeros))
+    _, exact = _check_smooth_along(pairs, step, tau)
+    np.testing.assert_allclose(exact, -np.minimum(0.8, 1.5 - np.abs(x)), atol=1e-12)
+
+
+def test_continuity_through_closest_feature_switch_2d():
+    """Apart: a small square above a big one's top edge turns through the angle where its
+    edge is parallel to it; the closest feature of b switches from one corner to the other,
+    and the exact value 0.7 - 0.5 (cos t + |sin t|) has a kink at t = 0."""
+    step, tau = 1e-3, 0.01
+    turn = step * (np.arange(BATCH) - BATCH // 2)
+    zeros = np.zeros(BATCH)
+    pairs = _path_pairs(jaxsat.box([1.0, 1.0], max_vertices=8), _SQUARE,
+                        jaxsat.box([0.5, 0.5], max_vertices=8), 0.5 * _SQUARE,
+                        (zeros, zeros, zeros), (np.full(BATCH, 0.3), np.full(BATCH, 1.7), turn))
+    _, exact = _check_smooth_along(pairs, step, tau)
+    np.testing.assert_allclose(exact, 0.7 - 0.5 * (np.cos(turn) + np.abs(np.sin(turn))),
+                               atol=1e-12)
+
+
+def test_continuity_through_axis_switch_3d():
+    """A small box turning about a fixed axis while overlapping a cube near its corner: a
+    coarse sweep with the oracle finds where the exact normal switches, bisection pins it
+    down, then a fine sweep of the angle across it checks the smooth value and gradient."""
+    half = np.array([0.3, 0.5, 0.7])
+    axis = np.array([0.3, -0.5, 0.8])
+    base = quaternion([1.0, 2.0, 0.5], 0.7)
+
+    def pairs_at(angles):
+        count = len(angles)
+        quaternions = np.array([quaternion_product(quaternion(axis, t), base) for t in angles])
+        return _path_pairs(jaxsat.box([1.0, 1.0, 1.0]), _CUBE, jaxsat.box(half), _CUBE * half,
+                           (np.zeros((count, 3)), np.tile(IDENTITY, (count, 1))),
+                           (np.tile([1.05, 0.9, 0.4], (count, 1)), quaternions))
+
+    def normal_at(angle):
+        return references(pairs_at([angle]))[0].normal
+
+    coarse = np.linspace(0.0, np.pi, 91)
+    normals = np.array([r.normal for r in references(pairs_at(coarse))])
+    switches = np.flatnonzero(np.max(np.abs(np.diff(normals, axis=0)), axis=1) > 0.1)
+    assert len(switches) > 0
+    low, high = coarse[switches[0]], coarse[switches[0] + 1]
+    start = normal_at(low)
+    for _ in range(30):
+        middle = 0.5 * (low + high)
+        if np.max(np.abs(normal_at(middle) - start)) > 0.1:
+            high = middle
+        else:
+            low = middle
+    step, tau = 1e-3, 0.01
+    angles = 0.5 * (low + high) + step * (np.arange(BATCH) - BATCH // 2)
+    _, exact = _check_smooth_along(pairs_at(angles), step, tau)
+    assert np.all(exact < 0)  # overlapping all along
+
+
+# --------------------------------------------------------------------------------------------
+# smoothing_error_bound, and tau as a traced value.
+# --------------------------------------------------------------------------------------------
+
+
+def test_bound_values():
+    """The bound grows with the vertex count, ignores padding, is symmetric, is at least
+    log(n_a n_b) (log-sum-exp over the n_a n_b vertex pairs can lose that much), and matches
+    the documented sizes (about 6 for two 8-gons or two boxes, about 9 for two 20-hulls).
+    (Jitted, and mostly on shapes padded to one size: every new size compiles anew.)"""
+    square = jaxsat.box([1.0, 1.0], max_vertices=8)
+    polygons = [jaxsat.regular_polygon(n, 1.0, max_vertices=8) for n in range(3, 9)]
+    values = [float(bound_of(p, square)) for p in polygons]
+    assert np.all(np.diff(values) > 0)
+    for n, p in zip(range(3, 9), polygons, strict=True):
+        assert float(bound_of(square, p)) == pytest.approx(values[n - 3])
+        assert values[n - 3] >= np.log(4 * n)
+    unpadded = float(bound_of(jaxsat.regular_polygon(5, 2.0), jaxsat.box([1.0, 1.0])))
+    assert unpadded == pytest.approx(values[2])
+    octagons = float(bound_of(polygons[-1], polygons[-1]))
+    boxes = float(bound_of(jaxsat.box([1.0, 2, 3]), jaxsat.box([1.0, 1, 1])))
+    rng = np.random.default_rng(57)
+    hulls = []
+    for count in (8, 20):
+        sphere = rng.normal(size=(count, 3))
+        hulls.append(jaxsat.polyhedron(sphere / np.linalg.norm(sphere, axis=1, keepdims=True),
+                                       max_vertices=20))
+        assert int(np.sum(hulls[-1].vertex_mask)) == count  # every point is a hull vertex
+    padded_box = jaxsat.box([1.0, 2, 3], max_vertices=20)
+    assert float(bound_of(padded_box, hulls[0])) < float(bound_of(hulls[1], hulls[0]))
+    hull8, hull20 = hulls
+    twenties = float(bound_of(hull20, hull20))
+    assert 5 <= octagons <= 7 and 5 <= boxes <= 7 and 8 <= twenties <= 10.5
+    assert boxes < twenties
+    assert float(bound_of(hull8, hull8)) < twenties
+    assert float(bound_of(padded_box, jaxsat.box([1.0, 1, 1], max_vertices=20))) == \
+        pytest.approx(boxes)
+
+
+def test_bound_on_batches():
+    """Stacked shapes give one bound per pair (eagerly too); a single shape broadcasts; vmap
+    agrees."""
+    rng = np.random.default_rng(58)
+    for name in ("poly8", "hull8"):
+        shapes = make_pool(name, np.float64, rng, size=5).shapes
+        singles = [take(shapes, i) for i in range(5)]
+        each = np.array([float(bound_of(x, y))
+                         for x, y in zip(singles, singles[::-1], strict=True)])
+        reversed_stack = take(shapes, np.arange(5)[::-1])
+        stacked = np.asarray(jaxsat.smoothing_error_bound(shapes, reversed_stack))
+        assert stacked.shape == (5,)
+        np.testing.assert_allclose(stacked, each, rtol=1e-12)
+        mapped = jax.jit(jax.vmap(jaxsat.smoothing_error_bound))(shapes, reversed_stack)
+        np.testing.assert_allclose(mapped, each, rtol=1e-12)
+        broadcast = np.asarray(bound_of(singles[0], shapes))
+        np.testing.assert_allclose(broadcast, [float(bound_of(singles[0], y))
+                                               for y in singles], rtol=1e-12)
+    shapes32 = make_pool("box", np.float32, rng, size=2).shapes
+    assert bound_of(shapes32, shapes32).dtype == np.float32
+
+
+def test_bound_rejects_mismatched_shapes():
+    """Shapes of different dimensions, or something other than a Polytope: ValueError."""
+    square, cube = jaxsat.box([1.0, 1.0]), jaxsat.box([1.0, 1.0, 1.0])
+    for a, b in ((square, cube), (cube, square)):
+        with pytest.raises(ValueError, match="dimension"):
+            jaxsat.smoothing_error_bound(a, b)
+    with pytest.raises(ValueError, match="Polytope"):
+        jaxsat.smoothing_error_bound(square, np.zeros((4, 2)))
+
+
+def test_traced_tau_under_jit():
+    """tau as a traced argument of jit gives the eager value with a Python tau and the value
+    of the batched function; one compiled function serves every tau."""
+    rng = np.random.default_rng(59)
+    shapes = pool("poly8", np.float64)
+    pairs = random_pairs(shapes, shapes, 1, rng, np.float64)
+    a, params_a, b, params_b = take(pairs.inputs(), 0)
+    pose_a, pose_b = make_pose(params_a), make_pose(params_b)
+    traced = jax.jit(lambda t: jaxsat.signed_distance(a, pose_a, b, pose_b, smoothing=t))
+    eager = jaxsat.signed_distance(a, pose_a, b, pose_b, smoothing=0.05)
+    assert float(traced(0.05)) == pytest.approx(float(eager), abs=1e-12)
+    taus = [0.5, 0.1, 0.05, 0.01]
+    values = [float(traced(t)) for t in taus]
+    batched = smooth_values(pairs.subset([0] * len(taus)), taus)
+    np.testing.assert_allclose(values, batched, atol=1e-12)
+    assert traced._cache_size() == 1
+    exact = references(pairs)[0].value
+    bound = float(bound_of(a, b))
+    for t, v in zip(taus, values, strict=True):
+        assert abs(v - exact) <= bound * t + 1e-9
+
+
+def _zero_smoothing(a, params_a, b, params_b):
+    return jaxsat.signed_distance(a, make_pose(params_a), b, make_pose(params_b), smoothing=0)
+
+
+zero_batch = jax.jit(jax.vmap(_zero_smoothing))
+
+
+def test_zero_smoothing_is_exact():
+    """smoothing=0 is the exact value (the oracle's); a small tau is close to it, and
+    differs from it for most pairs (for some, every term but the largest underflows)."""
+    rng = np.random.default_rng(62)
+    shapes = pool("poly8", np.float64)
+    pairs = random_pairs(shapes, shapes, BATCH, rng, np.float64)
+    refs = references(pairs)
+    default = run_batched(zero_batch, len(pairs), *pairs.inputs())
+    np.testing.assert_allclose(default, exact_values(refs), rtol=0, atol=1e-9)
+    smooth = smooth_values(pairs, np.full(len(pairs), 1e-6))
+    assert np.mean(smooth != default) > 0.5
+    assert np.all(np.abs(smooth - default) <= bounds(pairs) * 1e-6 + 1e-9)
+
+
+def test_float32():
+    """float32 shapes, poses and tau: float32 values within the bound (plus float32 error)."""
+    rng = np.random.default_rng(60)
+    shapes = pool("poly8", np.float32)
+    pairs = random_pairs(shapes, shapes, BATCH, rng, np.float32)
+    refs = references(pairs)
+    taus = np.where(np.arange(BATCH) % 2 == 0, 0.01, 0.1) * sizes_of(refs)
+    values = smooth_values(pairs, taus.astype(np.float32))
+    assert values.dtype == np.float32
+    errors = np.abs(values.astype(np.float64) - exact_values(refs))
+    assert np.all(errors <= bounds(pairs) * taus + 1e-4 * sizes_of(refs))
+
+
+def test_traced_zero_smoothing_is_finite_and_exact_up_to_rounding():
+    """Regression: a traced tau of 0 divided by zero (NaN); it is now floored at a few ulps."""
+    square = jaxsat.box([1.0, 1.0])
+    origin = jaxsat.pose2(0.0, 0.0, 0.0)
+
+    def smooth(tau, x):
+        return jaxsat.signed_distance(square, origin, square, jaxsat.pose2(x, 3.0, 0.0),
+                                      smoothing=tau)
+
+    value = jax.jit(smooth)(0.0, 3.0)
+    assert abs(float(value) - 2**0.5) < 1e-9
+    grads = jax.jit(jax.grad(smooth, argnums=(0, 1)))(0.0, 3.0)
+    assert all(np.isfinite(g) for g in grads)
+    assert abs(float(grads[1]) - 0.5**0.5) < 1e-6
