@@ -82,12 +82,6 @@ def _segment_indices(shape: Polytope):
     return shape.edge_endpoints[:, 0], shape.edge_endpoints[:, 1]
 
 
-def _segments(shape: Polytope, vertices):
-    """(start, end) points of every edge, (K, D) each."""
-    start, end = _segment_indices(shape)
-    return vertices[start], vertices[end]
-
-
 def _dot(x, y):
     return sum(x_k * y_k for x_k, y_k in zip(x, y, strict=True))
 
