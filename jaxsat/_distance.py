@@ -159,7 +159,8 @@ def _segment_candidates(a: Polytope, a_vertices, b: Polytope, b_vertices):
 
 def _exact_parts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
     """Values only, in a's frame: the gaps (C + 1,) along the SAT winner and along every
-    segment candidate's axis, those axes (C + 1, D), and b's vertices."""
+    segment candidate's axis, those axes (C + 1, D), b's vertices, and the relative pose
+    (rotation, translation) that maps b's local coordinates into a's frame."""
     rotation, translation = _relative_pose(pose_a, pose_b)
     b_vertices = _rotate(rotation, b.vertices) + translation
     _, sat_axis = _best_axis(_candidate_groups(a, pose_a, b, pose_b)[0])
@@ -170,7 +171,7 @@ def _exact_parts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
     segment_axes = jnp.where(valid[:, None], segment_axes, sat_axis)
     axes = jnp.concatenate([sat_axis[None], segment_axes])
     gaps = _gap(axes, a.vertices, a.vertex_mask, b_vertices, b.vertex_mask)
-    return gaps, axes, b_vertices
+    return gaps, axes, b_vertices, (rotation, translation)
 
 
 def _one_hot(index, size, dtype):
@@ -284,11 +285,10 @@ def _witnesses(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose):
     Overlapping: move b out along the axis until the shapes touch, find the touching points
     there, and move b's point back (b's weights need no change: the move is a translation).
     Apart: the move is zero."""
-    gaps, axes, b_vertices = _exact_parts(a, pose_a, b, pose_b)
+    gaps, axes, b_vertices, (rotation, translation) = _exact_parts(a, pose_a, b, pose_b)
     distance = jnp.max(gaps)
     axis = axes[jnp.argmax(gaps)]
     shift = jnp.maximum(-distance, 0.0) * axis
-    rotation, translation = _relative_pose(pose_a, pose_b)
     point_a, point_b, weights_a, weights_b = _touching_witnesses(
         a, b, rotation, translation + shift, b_vertices + shift, axis, jnp.maximum(distance, 0))
     return distance, axis, point_a, point_b - shift, weights_a, weights_b

@@ -164,15 +164,11 @@ def _smooth_signed_distance(a, pose_a, b, pose_b, tau) -> jax.Array:
     # value the exact one up to rounding instead of 0/0 (double where: no NaN in gradients).
     floor = 16 * jnp.finfo(tau.dtype).eps
     tau = jnp.where(tau > floor, tau, floor)
-    a = _with_vertices(a, a_vertices)
+    a = dataclasses.replace(a, vertices=a_vertices)
     radius = _radius(a_vertices, a.vertex_mask) + _radius(b_vertices, b.vertex_mask)
     axes, gates = _candidates(a, b, b_vertices, rotation, tau, radius)
     values = _soft_gaps(axes, a_vertices, a.vertex_mask, b_vertices, b.vertex_mask, tau)
     return scale * _gated_soft_max(values, gates, tau)
-
-
-def _with_vertices(shape: Polytope, vertices) -> Polytope:
-    return dataclasses.replace(shape, vertices=vertices)
 
 
 def _candidate_count(a: Polytope, b: Polytope) -> jax.Array:
