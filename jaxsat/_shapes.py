@@ -83,6 +83,12 @@ def _pad_rows(rows: np.ndarray, size: int, name: str) -> tuple[np.ndarray, np.nd
     return np.concatenate([rows, padding]), np.arange(size) < count
 
 
+def _maybe_unique(directions: np.ndarray, unique_axes: bool) -> np.ndarray:
+    if not isinstance(unique_axes, bool):
+        raise ValueError(f"unique_axes must be True or False, got {unique_axes!r}")
+    return geometry.unique_directions(directions) if unique_axes else directions
+
+
 def _check_max_vertices(max_vertices: int | None, count: int) -> int:
     if max_vertices is None:
         return count
@@ -120,7 +126,8 @@ def _build(vertices, face_normals, edge_directions, edge_endpoints, edge_face_no
     )
 
 
-def polygon(vertices, max_vertices: int | None = None, *, dtype=None) -> Polytope:
+def polygon(vertices, max_vertices: int | None = None, *, dtype=None,
+            unique_axes: bool = True) -> Polytope:
     """A convex polygon from its vertices, given in either winding order.
 
     Args:
@@ -129,6 +136,8 @@ def polygon(vertices, max_vertices: int | None = None, *, dtype=None) -> Polytop
       max_vertices: pad to this many vertices (and face normals) so that polygons of different
         vertex counts share one compiled kernel. Default: no padding.
       dtype: float dtype of the result; default: the input's float dtype, else JAX's default.
+      unique_axes: keep one face normal per direction (a rectangle tests 2 axes, not 4).
+        False keeps one per edge, as a textbook SAT does: the same answers, more work.
 
     Raises:
       ValueError: wrong shape, NaN/inf, fewer than 3 distinct vertices, collinear vertices,
@@ -137,14 +146,15 @@ def polygon(vertices, max_vertices: int | None = None, *, dtype=None) -> Polytop
     points = geometry.as_point_array(vertices, 2, "polygon vertices")
     ring = geometry.convex_polygon(points)
     size = _check_max_vertices(max_vertices, len(ring))
-    normals = geometry.unique_directions(geometry.polygon_edge_normals(ring))
+    normals = _maybe_unique(geometry.polygon_edge_normals(ring), unique_axes)
     num_faces = len(normals) if max_vertices is None else size
     return _build(ring, normals, np.zeros((0, 2)), np.zeros((0, 2), np.int64),
                   np.zeros((0, 2, 2)), (size, num_faces, 0, 0),
                   _float_dtype(np.asarray(vertices), dtype))
 
 
-def polyhedron(points, max_vertices: int | None = None, *, dtype=None) -> Polytope:
+def polyhedron(points, max_vertices: int | None = None, *, dtype=None,
+               unique_axes: bool = True) -> Polytope:
     """The convex hull of a 3D point cloud, with coplanar triangles merged into faces.
 
     Args:
@@ -153,6 +163,9 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None) -> Polyto
         polyhedron with that many vertices can have (2V - 4 faces, 3V - 6 edges), so that every
         hull of the size class shares one compiled kernel. Default: no padding.
       dtype: float dtype of the result; default: the input's float dtype, else JAX's default.
+      unique_axes: keep face normals and edge directions unique up to sign (a box: 3 and 3).
+        False keeps one per face and one per edge (a box: 6 and 12), as a textbook SAT does:
+        the same answers, more work (see benchmarks/skipping.py).
 
     Raises:
       ValueError: wrong shape, NaN/inf, fewer than 4 distinct points, collinear or coplanar
@@ -160,10 +173,10 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None) -> Polyto
     """
     cloud = geometry.as_point_array(points, 3, "polyhedron points")
     hull = geometry.convex_hull_3d(cloud)
-    normals = geometry.unique_directions(hull.face_normals)
+    normals = _maybe_unique(hull.face_normals, unique_axes)
     segments = hull.vertices[hull.edges[:, 1]] - hull.vertices[hull.edges[:, 0]]
     lengths = np.linalg.norm(segments, axis=1, keepdims=True)
-    directions = geometry.unique_directions(segments / lengths)
+    directions = _maybe_unique(segments / lengths, unique_axes)
     size = _check_max_vertices(max_vertices, len(hull.vertices))
     sizes = (size, len(normals), len(directions), len(hull.edges))
     if max_vertices is not None:
@@ -173,8 +186,11 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None) -> Polyto
                   _float_dtype(np.asarray(points), dtype))
 
 
-def box(half_extents, max_vertices: int | None = None, *, dtype=None) -> Polytope:
+def box(half_extents, max_vertices: int | None = None, *, dtype=None,
+        unique_axes: bool = True) -> Polytope:
     """An axis-aligned box centred on the origin: a rectangle (2 values) or a cuboid (3 values).
+
+    `max_vertices`, `dtype` and `unique_axes` are as in `polygon` and `polyhedron`.
 
     Raises:
       ValueError: not 2 or 3 values, or a half extent that is not finite and positive.
@@ -187,9 +203,9 @@ def box(half_extents, max_vertices: int | None = None, *, dtype=None) -> Polytop
     dtype = _float_dtype(np.asarray(half_extents), dtype)
     if len(half) == 2:
         corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=np.float64) * half
-        return polygon(corners, max_vertices, dtype=dtype)
+        return polygon(corners, max_vertices, dtype=dtype, unique_axes=unique_axes)
     signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
-    return polyhedron(signs * half, max_vertices, dtype=dtype)
+    return polyhedron(signs * half, max_vertices, dtype=dtype, unique_axes=unique_axes)
 
 
 def regular_polygon(num_sides: int, radius: float = 1.0, max_vertices: int | None = None, *,

@@ -924,3 +924,73 @@ def test_jitted_hull_pair_regression_picks_a_true_axis():
     gap = oracle.support_gap(np.asarray(result.normal), world_a, world_b)
     assert gap == pytest.approx(depth, abs=1e-9)  # the normal really has this gap
     assert not bool(jax.jit(jaxsat.intersects)(a, pose_a, b, pose_b))
+
+
+# --------------------------------------------------------------------------------------------
+# prune=False: every pair of edge directions by projection, as a textbook SAT does (the
+# comparison of benchmarks/skipping.py).
+# --------------------------------------------------------------------------------------------
+
+
+def _unpruned_query(a, pose_a, b, pose_b):
+    return (jaxsat.penetration(a, pose_a, b, pose_b, prune=False),
+            jaxsat.intersects(a, pose_a, b, pose_b))
+
+
+unpruned_query = jax.jit(jax.vmap(_unpruned_query))
+
+
+def _is_parallelepiped(pool_: Pool, index: np.ndarray) -> np.ndarray:
+    """True for shapes with 3 edge directions (boxes, padded or not)."""
+    return np.asarray(pool_.shapes.edge_mask)[index].sum(axis=1) == 3
+
+
+@functools.cache
+def _padded_box_pool(dtype) -> Pool:
+    """Boxes padded to 8 vertices, the size class of "hull8" (one compile serves both): they
+    take the Gauss map, and every pair of their edge directions forms a Minkowski face."""
+    rng = np.random.default_rng(43)
+    raw = [_random_box(rng, 1.0, max_vertices=8) for _ in range(12)]
+    return Pool(3, [points.astype(dtype).astype(np.float64) for points, _ in raw],
+                jaxsat.stack([factory(dtype) for _, factory in raw]))
+
+
+@pytest.mark.parametrize(("name", "dtype"), [("hull8", np.float64), ("box8", np.float64),
+                                             ("hull8", np.float32)],
+                         ids=["hull8-float64", "box8-float64", "hull8-float32"])
+def test_prune_false_changes_no_overlap_result(name, dtype):
+    """prune=False tests every edge-direction pair by projection, a superset of the Gauss-map
+    pairs. Overlapping pairs: the same depth and normal. Separated pairs: the extra axes may
+    find a larger gap (closer to the distance), never a smaller one; for two boxes every
+    edge-direction pair is a Minkowski face, so there the gap is the same. Both stay within
+    the oracle's bounds. (Unpadded boxes take the projection path either way; test_shapes.py
+    covers boxes built with unique_axes=False.)"""
+    shapes = _padded_box_pool(dtype) if name == "box8" else pool(name, dtype)
+    pairs = random_pairs(shapes, shapes, BATCH, np.random.default_rng([41, len(name)]), dtype)
+    depth, normal, hits = evaluate(pairs)
+    full_depth, full_normal, full_hits = evaluate(pairs, unpruned_query)
+    references = oracles(pairs)
+    sizes = np.array([ref.size for ref in references[0]])
+    tol = {np.float64: 1e-12, np.float32: RELATIVE_TOLERANCE[np.float32]}[dtype] * sizes
+    overlap, separated = depth > tol, depth < -tol
+    assert 0.2 < overlap.mean() < 0.8
+    np.testing.assert_array_equal(full_hits, hits)
+    np.testing.assert_array_less(np.abs(full_depth - depth)[overlap], tol[overlap])
+    unique = overlap & np.array([ref.normal_is_unique for ref in references[0]])
+    np.testing.assert_allclose(full_normal[unique], normal[unique],
+                               atol=NORMAL_TOLERANCE[dtype])
+    np.testing.assert_array_less(full_depth[separated], depth[separated] + tol[separated])
+    boxes = (separated & _is_parallelepiped(pairs.pool_a, pairs.index_a)
+             & _is_parallelepiped(pairs.pool_b, pairs.index_b))
+    assert name != "box8" or boxes.sum() > 20
+    np.testing.assert_array_less(np.abs(full_depth - depth)[boxes], tol[boxes])
+    if name != "box8":  # hulls: some separated pair finds a larger gap (else this tests little)
+        assert np.any(full_depth[separated] < depth[separated] - tol[separated])
+    check_against_oracle(pairs, (full_depth, full_normal, full_hits), references)
+
+
+@pytest.mark.parametrize("prune", [1, 0, None, "no", 1.0])
+def test_non_bool_prune_raises(prune):
+    cube, pose = jaxsat.box([1.0, 1.0, 1.0]), jaxsat.pose3(np.zeros(3), [1.0, 0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="prune"):
+        jaxsat.penetration(cube, pose, cube, pose, prune=prune)

@@ -497,3 +497,128 @@ def test_bad_stack_raises():
         jaxsat.stack([jaxsat.stack([square])])
     with pytest.raises(ValueError, match="unbatched"):
         jaxsat.stack([square, SQUARE])
+
+
+# --------------------------------------------------------------------------------------------
+# unique_axes=False: one face normal per face and one edge direction per edge, as a textbook
+# SAT keeps them (the comparison of benchmarks/skipping.py).
+# --------------------------------------------------------------------------------------------
+
+
+def _extents_match(shape):
+    """face_extents is [min, max] of the shape's vertices on each real face normal."""
+    normals = real(shape.face_normals, shape.face_mask)
+    projections = real(shape.vertices, shape.vertex_mask) @ normals.T
+    np.testing.assert_allclose(real(shape.face_extents, shape.face_mask),
+                               np.stack([projections.min(0), projections.max(0)], axis=1),
+                               atol=1e-12)
+
+
+def test_unique_axes_false_keeps_every_face_and_edge():
+    cube = jaxsat.box([1.0, 2.0, 3.0], unique_axes=False)
+    normals = real(cube.face_normals, cube.face_mask)
+    assert normals.shape == (6, 3) and same_points(normals, np.concatenate([np.eye(3),
+                                                                            -np.eye(3)]))
+    edges = real(cube.edge_directions, cube.edge_mask)
+    assert edges.shape == (12, 3) and same_lines(edges, np.eye(3), same_count=False)
+    for axis in range(3):  # 4 edges along each axis
+        assert np.sum(np.abs(np.abs(edges[:, axis]) - 1) < 1e-12) == 4
+    unique = jaxsat.box([1.0, 2.0, 3.0])
+    for name in ("vertices", "edge_endpoints", "edge_face_normals"):  # hull edges unchanged
+        np.testing.assert_array_equal(getattr(cube, name), getattr(unique, name))
+    _extents_match(cube)
+    rectangle = jaxsat.box([1.0, 2.0], unique_axes=False)
+    normals = real(rectangle.face_normals, rectangle.face_mask)
+    assert normals.shape == (4, 2) and same_points(normals, [[1, 0], [-1, 0], [0, 1], [0, -1]])
+    assert rectangle.edge_directions.shape == (0, 2)
+    _extents_match(rectangle)
+
+
+def test_unique_axes_false_on_a_hull_keeps_one_normal_per_merged_face():
+    points = np.random.default_rng(8).normal(size=(30, 3))
+    every, unique = jaxsat.polyhedron(points, unique_axes=False), jaxsat.polyhedron(points)
+    hull = ConvexHull(points)
+    faces = {tuple(np.round(equation, 9)) for equation in hull.equations}  # merged facets
+    normals = real(every.face_normals, every.face_mask)
+    assert len(normals) == len(faces) >= len(real(unique.face_normals, unique.face_mask))
+    assert same_lines(normals, real(unique.face_normals, unique.face_mask), same_count=False)
+    assert len(real(every.edge_directions, every.edge_mask)) == int(every.hull_edge_mask.sum())
+    _extents_match(every)
+
+
+_penetration_pairs = jax.jit(jax.vmap(jaxsat.penetration))
+
+
+def _world(shapes, poses):
+    """float64 world vertices (N, V, D) of batched shapes and poses."""
+    rotation, vertices = np.asarray(poses.rotation), np.asarray(shapes.vertices)
+    return np.einsum("nrk,nvk->nvr", rotation, vertices) + np.asarray(poses.translation)[:, None]
+
+
+def _assert_same_penetration(build, raw_a, raw_b, dim, seed, reach=2.0):
+    """Penetration depth and normal of 64 random pairs (shapes drawn from raw_a x raw_b, b's
+    origin within `reach` of a's) are the same with unique and with every axis; normals may
+    differ only at ties, where both normals give the same depth."""
+    rng = np.random.default_rng(seed)
+    pick_a, pick_b = rng.integers(len(raw_a), size=64), rng.integers(len(raw_b), size=64)
+    poses_a = _random_poses(dim, 64, seed + 1)
+    offsets = rng.normal(size=(64, dim))
+    offsets *= rng.uniform(0.0, reach, (64, 1)) / np.linalg.norm(offsets, axis=1, keepdims=True)
+    poses_b = _random_poses(dim, 64, seed + 2)
+    poses_b = jaxsat.Pose(poses_a.translation + offsets, poses_b.rotation)  # b near a
+    results = []
+    for unique in (True, False):
+        a = jaxsat.stack([build(raw, unique_axes=unique) for raw in raw_a])
+        b = jaxsat.stack([build(raw, unique_axes=unique) for raw in raw_b])
+        a, b = (jax.tree.map(lambda leaf, p=pick: leaf[p], s) for s, pick in ((a, pick_a),
+                                                                               (b, pick_b)))
+        result = _penetration_pairs(a, poses_a, b, poses_b)
+        results.append((np.asarray(result.depth), np.asarray(result.normal)))
+    (depth, normal), (other_depth, other_normal) = results
+    assert 0.2 < np.mean(depth > 0) < 0.8
+    np.testing.assert_allclose(other_depth, depth, rtol=0, atol=1e-12)
+    differ = np.max(np.abs(other_normal - normal), axis=1) > 1e-9
+    world_a, world_b = _world(a, poses_a)[differ], _world(b, poses_b)[differ]
+    for n in (normal[differ], other_normal[differ]):  # a tie: each normal certifies the depth
+        gaps = (np.einsum("nvk,nk->nv", world_a, n).max(1)
+                - np.einsum("nvk,nk->nv", world_b, n).min(1))
+        np.testing.assert_allclose(gaps, depth[differ], atol=1e-9)
+
+
+def _symmetric_octagon(rng):
+    angles = rng.uniform(0, np.pi) + np.pi * np.array([0.0, 0.2, 0.45, 0.7])
+    ring = np.stack([np.cos(angles), 0.6 * np.sin(angles)], axis=1)
+    return np.concatenate([ring, -ring])
+
+
+def test_unique_axes_false_gives_the_same_penetration_2d():
+    rng = np.random.default_rng(10)
+    hexagon = np.stack([np.cos(np.arange(6)), np.sin(np.arange(6) * 1.1)], axis=1)
+    raw = [SQUARE * [0.8, 0.3], _symmetric_octagon(rng), _symmetric_octagon(rng),
+           ConvexHull(hexagon).points[ConvexHull(hexagon).vertices]]
+    assert len(real(jaxsat.polygon(raw[1]).face_normals,
+                    jaxsat.polygon(raw[1]).face_mask)) == 4  # parallel edges do merge
+    _assert_same_penetration(jaxsat.polygon, raw, raw, 2, 11)
+
+
+def test_unique_axes_false_gives_the_same_penetration_boxes():
+    """Unique box axes take the projection edge method (3 x 3), every axis the Gauss map
+    (12 x 12 hull edges): the same results, overlapping or separated."""
+    rng = np.random.default_rng(12)
+    raw = [rng.uniform(0.3, 1.0, 3) for _ in range(3)]
+    _assert_same_penetration(jaxsat.box, raw, raw, 3, 13, reach=2.8)
+
+
+def test_unique_axes_false_gives_the_same_penetration_hulls():
+    rng = np.random.default_rng(14)
+    raw = [rng.normal(size=(10, 3)) * 0.6 for _ in range(2)] + [CUBE * [0.5, 0.3, 0.7]]
+    build = functools.partial(jaxsat.polyhedron, max_vertices=10)
+    _assert_same_penetration(build, raw, raw, 3, 15)
+
+
+@pytest.mark.parametrize("unique_axes", [1, 0, None, "no"])
+def test_non_bool_unique_axes_raises(unique_axes):
+    for constructor, points in ((jaxsat.polygon, SQUARE), (jaxsat.polyhedron, CUBE),
+                                (jaxsat.box, [1.0, 2.0]), (jaxsat.box, [1.0, 2.0, 3.0])):
+        with pytest.raises(ValueError, match="unique_axes"):
+            constructor(points, unique_axes=unique_axes)
