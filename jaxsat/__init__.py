@@ -1,5 +1,7 @@
 """jaxsat: batched, differentiable Separating Axis Theorem collision detection in JAX."""
 
+from jaxsat._batching import query_batch as query_batch
+from jaxsat._batching import query_pairs as query_pairs
 from jaxsat._distance import ClosestPoints as ClosestPoints
 from jaxsat._distance import closest_points as closest_points
 from jaxsat._distance import signed_distance as signed_distance
@@ -32,6 +34,8 @@ __all__ = [
     "polyhedron",
     "pose2",
     "pose3",
+    "query_batch",
+    "query_pairs",
     "regular_polygon",
     "signed_distance",
     "smoothing_error_bound",
