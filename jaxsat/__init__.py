@@ -2,6 +2,14 @@
 
 from jaxsat._batching import query_batch as query_batch
 from jaxsat._batching import query_pairs as query_pairs
+from jaxsat._compound import Compound as Compound
+from jaxsat._compound import CompoundPenetration as CompoundPenetration
+from jaxsat._compound import compound as compound
+from jaxsat._compound import compound_intersects as compound_intersects
+from jaxsat._compound import compound_penetration as compound_penetration
+from jaxsat._compound import concave_polygon as concave_polygon
+from jaxsat._compound import stack_compounds as stack_compounds
+from jaxsat._decompose import decompose as decompose
 from jaxsat._distance import ClosestPoints as ClosestPoints
 from jaxsat._distance import closest_points as closest_points
 from jaxsat._distance import signed_distance as signed_distance
@@ -23,11 +31,18 @@ __version__ = "0.1.0"
 
 __all__ = [
     "ClosestPoints",
+    "Compound",
+    "CompoundPenetration",
     "Penetration",
     "Polytope",
     "Pose",
     "box",
     "closest_points",
+    "compound",
+    "compound_intersects",
+    "compound_penetration",
+    "concave_polygon",
+    "decompose",
     "intersects",
     "penetration",
     "polygon",
@@ -40,4 +55,5 @@ __all__ = [
     "signed_distance",
     "smoothing_error_bound",
     "stack",
+    "stack_compounds",
 ]
