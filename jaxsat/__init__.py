@@ -9,6 +9,8 @@ from jaxsat._compound import compound_intersects as compound_intersects
 from jaxsat._compound import compound_penetration as compound_penetration
 from jaxsat._compound import concave_polygon as concave_polygon
 from jaxsat._compound import stack_compounds as stack_compounds
+from jaxsat._contacts import Contacts as Contacts
+from jaxsat._contacts import contacts as contacts
 from jaxsat._decompose import decompose as decompose
 from jaxsat._distance import ClosestPoints as ClosestPoints
 from jaxsat._distance import closest_points as closest_points
@@ -33,6 +35,7 @@ __all__ = [
     "ClosestPoints",
     "Compound",
     "CompoundPenetration",
+    "Contacts",
     "Penetration",
     "Polytope",
     "Pose",
@@ -42,6 +45,7 @@ __all__ = [
     "compound_intersects",
     "compound_penetration",
     "concave_polygon",
+    "contacts",
     "decompose",
     "intersects",
     "penetration",

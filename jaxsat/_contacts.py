@@ -1,0 +1,578 @@
+"""Contact manifolds: up to 2 (2D) or 4 (3D) contact points per pair, by face clipping.
+
+Method (as in Box2D and Bullet, in a fixed-size, vmap-friendly form). The contact normal n is
+`penetration`'s normal. Each shape contributes one face: a's face whose outward normal is best
+aligned with +n and b's face best aligned with -n, among the faces at the shape's support
+vertices along that direction (so that the face holds the deepest point). The reference face
+is a's, unless b's is better aligned by a clear tolerance; the incident face is the other one.
+Both faces are projected along n onto a plane across n, where clipping one against the other's
+side planes leaves the overlap polygon of the two projections. Its corners are found without
+sequential clipping, from a fixed candidate set: each face's corners inside the other face, and
+the crossings of their edges. At each candidate the depth is the distance along n from the
+incident face up to the reference face (positive where they overlap) and the reported point is
+the midpoint between the two faces there. The depth is linear over the polygon, so its largest
+value, at a corner, is the penetration depth for face contacts. Candidates are then reduced to
+at most 4 that span the largest area.
+
+Depth and midpoint are symmetric in the two faces, so the manifold does not depend on which one
+is the reference: a reference that flips between frames (equal boxes resting on each other,
+whose normal comes out of either shape's face with rounding) moves no point.
+
+Everything is computed in a's local frame and mapped to the world at the end.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsat._narrowphase import (
+    _cast_pair,
+    _check_pair,
+    _relative_pose,
+    _rotate,
+    penetration,
+)
+from jaxsat._poses import Pose
+from jaxsat._shapes import Polytope
+
+__all__ = ["Contacts", "contacts"]
+
+_FACE_ANGLE = 0.02
+"""3D: a face whose normal is within this angle (radians, as the chord |N - n|) of the contact
+normal counts as aligned with it. If neither shape has one, the contact is edge-edge (a single
+point). Well above rounding, so resting contacts with small tilts keep their full manifold."""
+
+_TIE_ANGLE = 1e-3
+"""b's face becomes the reference only if it is better aligned than a's by this angle (chord)."""
+
+_LENGTH_TOLERANCE = 64
+"""Length tolerance, in units of eps times the shapes' size (largest local coordinate)."""
+
+_MIN_SLOPE = 1e-3
+"""A face with |N . n| below this is seen edge-on along n: its plane gives no heights."""
+
+_KEY = (0.8, 0.6)
+"""A fixed direction across n that breaks ties between equally deep points, so that the first
+point (and so the whole reduced set) does not hop between frames with rounding."""
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Contacts:
+    """Result of `contacts` for one pair (fields gain leading axes under `vmap`).
+
+    P, the number of point slots, is static: 2 in 2D and 4 in 3D.
+    """
+
+    points: jax.Array
+    """(P, D) float: world-frame contact points, each the midpoint between the incident face
+    and the reference face along `normal`. Invalid slots hold a copy of slot 0."""
+    depths: jax.Array
+    """(P,) float: penetration depth at each point along `normal` (> 0 overlapping, down to
+    -margin for near points). Invalid slots hold a copy of slot 0."""
+    normal: jax.Array
+    """(D,) float: unit world-frame contact normal from a towards b, exactly
+    `penetration(a, pose_a, b, pose_b).normal`."""
+    valid: jax.Array
+    """(P,) bool: True for real contact points."""
+
+
+class _Details(NamedTuple):
+    """What `_manifold` knows besides the contacts (world frame), for tests and debugging."""
+
+    reference_is_b: jax.Array
+    """() bool: b's face is the reference face."""
+    face_normal_a: jax.Array
+    """(D,) float: outward normal of a's contact face (the reference face unless
+    reference_is_b)."""
+    face_normal_b: jax.Array
+    """(D,) float: outward normal of b's contact face."""
+    single_point: jax.Array
+    """() bool: one point from the closest points of two edges (3D edge-edge contact, or no
+    overlap of the faces' projections) instead of face clipping."""
+    depth: jax.Array
+    """() float: the penetration depth."""
+
+
+class _Face(NamedTuple):
+    """One face in a's frame as M edge slots, counter-clockwise about its outward normal."""
+
+    start: jax.Array
+    """(M, D) float: first corner of each edge (each corner starts exactly one edge)."""
+    end: jax.Array
+    """(M, D) float: second corner of each edge."""
+    valid: jax.Array
+    """(M,) bool: real edges (unused slots hold the centroid)."""
+    normal: jax.Array
+    """(D,) float: outward unit normal."""
+    centroid: jax.Array
+    """(D,) float: a point inside the face (the mean of its edges' midpoints)."""
+
+
+class _Candidates(NamedTuple):
+    """Candidate contact points in a's frame."""
+
+    points: jax.Array
+    """(C, D) float: midpoints between the two faces."""
+    depths: jax.Array
+    """(C,) float: distance along n from the incident face up to the reference face."""
+    valid: jax.Array
+    """(C,) bool."""
+    across: jax.Array
+    """(C, D - 1) float: coordinates across n, for the reduction to the largest area."""
+
+
+def contacts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
+             margin=0.0) -> Contacts:
+    """Contact manifold of one pair of convex shapes: up to 2 (2D) or 4 (3D) points.
+
+    The normal is `penetration`'s. The reference face is a's face whose outward normal is best
+    aligned with +normal, or b's face best aligned with -normal if that is better aligned by a
+    clear tolerance (so it does not flip between frames when the two faces tie); the incident
+    face is the other shape's face most anti-parallel to it (both faces are taken among those at
+    the shape's deepest vertices). The incident face is clipped against the side planes of the
+    reference face (along the normal). Each point's depth is how far the incident face lies
+    below the reference plane there, measured along the normal; the deepest point's depth is
+    the penetration depth for face contacts. Each point is reported as the midpoint between the
+    incident point and its projection along the normal onto the reference face: it lies inside
+    both shapes wherever each shape is at least depth/2 thick there along the normal (always
+    for boxes), and within depth/2 of each shape otherwise. The result does not depend on which
+    face is the reference. In 3D the clipped polygon is reduced to at most 4 points spanning the
+    largest area (the deepest point, the farthest from it, the largest triangle, the largest
+    added area); coincident points count once.
+
+    When no face of either shape is aligned with the normal (3D edge-edge contact), the
+    manifold is a single point: the midpoint of the closest points of the two edges, with the
+    penetration depth. The same single point stands in if clipping finds nothing.
+
+    Args:
+      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches).
+      pose_a, pose_b: their poses.
+      margin: non-negative distance: points whose depth is at least -margin are valid, so that
+        shapes up to `margin` apart already get (negative-depth) contacts. May be traced.
+
+    Returns:
+      Contacts in the common dtype of the inputs. No point is valid when the penetration depth
+      is below -margin; a point is valid when its depth is at least -margin (within rounding).
+
+    Raises:
+      ValueError: a or b is not a Polytope, a pose is not a Pose, batched inputs, mixed
+        dimensions, or a concrete margin that is not a non-negative finite number.
+    """
+    return _manifold(a, pose_a, b, pose_b, margin)[0]
+
+
+def _check_margin(margin) -> None:
+    if isinstance(margin, jax.core.Tracer):
+        return  # traced margins are the caller's business
+    try:
+        value = np.asarray(margin, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"margin must be a number, got {type(margin).__name__}") from error
+    if value.shape != () or not np.isfinite(value) or value < 0:
+        raise ValueError(f"margin must be a non-negative finite number, got {margin!r}")
+
+
+class _Frame(NamedTuple):
+    """What every step needs, in a's local frame."""
+
+    normal: jax.Array
+    """(D,) float: the contact normal n."""
+    b_vertices: jax.Array
+    """(V_b, D) float: b's vertices."""
+    b_rotation: jax.Array
+    """(D, D) float: rotation from b's frame to a's."""
+    tol: jax.Array
+    """() float: length tolerance (a few eps times the shapes' size)."""
+    margin: jax.Array
+    """() float: the margin."""
+
+
+def _manifold(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose,
+              margin=0.0) -> tuple[Contacts, _Details]:
+    """`contacts` plus the faces it used (see `_Details`)."""
+    _check_pair(a, pose_a, b, pose_b)
+    _check_margin(margin)
+    result = _materialize(penetration(a, pose_a, b, pose_b))
+    a, pose_a, b, pose_b = _cast_pair(a, pose_a, b, pose_b)
+    frame = _frame(a, pose_a, b, pose_b, result.normal, margin)
+    clip = _polygon_contacts if a.dim == 2 else _hull_contacts
+    candidates, edges, edge_edge, face_a, face_b = clip(a, b, frame)
+    points, depths, valid, single = _assemble(candidates, edges, edge_edge, result.depth, frame)
+    to_world = lambda vectors: _rotate(pose_a.rotation, vectors)  # noqa: E731
+    reference_is_b = (_chord(face_b.normal, -frame.normal) + _TIE_ANGLE
+                      < _chord(face_a.normal, frame.normal))
+    details = _Details(reference_is_b, to_world(face_a.normal), to_world(face_b.normal), single,
+                       result.depth)
+    return Contacts(points=to_world(points) + pose_a.translation, depths=depths,
+                    normal=result.normal, valid=valid), details
+
+
+def _frame(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, normal, margin) -> _Frame:
+    rotation, translation = _relative_pose(pose_a, pose_b)
+    b_vertices = _rotate(rotation, b.vertices) + translation
+    size = jnp.maximum(jnp.max(jnp.abs(a.vertices)), jnp.max(jnp.abs(b.vertices)))
+    tol = _LENGTH_TOLERANCE * jnp.finfo(a.dtype).eps * size
+    normal, b_vertices, tol = _materialize((_rotate(pose_a.rotation.T, normal), b_vertices, tol))
+    return _Frame(normal, b_vertices, rotation, tol, jnp.asarray(margin, a.dtype))
+
+
+def _polygon_contacts(a: Polytope, b: Polytope, frame: _Frame):
+    """2D: the two contact edges, their clipped overlap (valid points first), the edges for a
+    single point, and no edge-edge case."""
+    face_a = _polygon_face(a.vertices, a.vertex_mask, frame.normal, frame.tol)
+    face_b = _polygon_face(frame.b_vertices, b.vertex_mask, -frame.normal, frame.tol)
+    candidates = _keep_near(_clip_segments(face_a, face_b, frame.normal, frame.tol), frame)
+    edges = (face_a.start[0], face_a.end[0], face_b.start[0], face_b.end[0])
+    return _valid_first(candidates), edges, jnp.array(False), face_a, face_b
+
+
+def _hull_contacts(a: Polytope, b: Polytope, frame: _Frame):
+    """3D: the two contact faces, their clipped overlap reduced to 4 points, the support edges
+    for a single point, and whether the contact is edge-edge (no face aligned with n)."""
+    b_normals = _rotate(frame.b_rotation, b.edge_face_normals)
+    (face_a, edge_a), (face_b, edge_b) = _materialize((
+        _hull_face(a, a.vertices, a.edge_face_normals, frame.normal, frame.tol),
+        _hull_face(b, frame.b_vertices, b_normals, -frame.normal, frame.tol)))
+    clipped = _clip_faces(face_a, face_b, frame.normal, frame.tol)
+    candidates = _reduce(_materialize(_keep_near(clipped, frame)), frame.tol)
+    edge_edge = jnp.minimum(_chord(face_a.normal, frame.normal),
+                            _chord(face_b.normal, -frame.normal)) > _FACE_ANGLE
+    return candidates, (*edge_a, *edge_b), edge_edge, face_a, face_b
+
+
+def _assemble(candidates: _Candidates, edges, edge_edge, depth, frame: _Frame):
+    """Points (a's frame), depths and validity of the P slots: the candidates, or one point
+    from the closest points of two edges (edge-edge, or no candidate), with `depth`.
+    Returns them and whether the single point was used."""
+    single = edge_edge | ~jnp.any(candidates.valid)
+    single_point, candidates = _materialize((_closest_midpoint(*edges), candidates))
+    points = jnp.where(single, single_point[None], candidates.points)
+    depths = jnp.where(single, depth, candidates.depths)
+    first = jnp.arange(depths.shape[0]) == 0
+    valid = jnp.where(single, first, candidates.valid) & (depth >= -frame.margin)
+    # Invalid slots copy slot 0, which always holds finite values.
+    points = jnp.where(valid[:, None] | first[:, None], points, points[0])
+    depths = jnp.where(valid | first, depths, depths[0])
+    return points, depths, valid, single
+
+
+def _keep_near(candidates: _Candidates, frame: _Frame) -> _Candidates:
+    """Candidates whose depth is at least -margin (within rounding) stay valid."""
+    near = candidates.depths >= -frame.margin - frame.tol
+    return candidates._replace(valid=candidates.valid & near)
+
+
+# --------------------------------------------------------------------------------------------
+# Small spelled-out vector helpers (no dot_general, so that XLA fuses them).
+# --------------------------------------------------------------------------------------------
+
+
+def _materialize(tree):
+    """The same values, computed once and stored: XLA fuses cheap element-wise producers into
+    every consumer, so a value feeding broadcast consumers (a depth feeding (P, D) outputs, a
+    face feeding C candidates) would be recomputed per consumer element. A reduction is not
+    fused into its consumers, and a maximum with the smallest value is exact (optimization
+    barriers are dropped before fusion on CPU, so they cannot do this)."""
+    def stored(leaf):
+        if jnp.issubdtype(leaf.dtype, jnp.floating):
+            lowest = -jnp.inf
+        elif leaf.dtype == jnp.bool_:
+            return jnp.any(jnp.stack([leaf, jnp.zeros_like(leaf)]), axis=0)
+        else:
+            lowest = jnp.iinfo(leaf.dtype).min
+        return jnp.max(jnp.stack([leaf, jnp.full_like(leaf, lowest)]), axis=0)
+    return jax.tree.map(stored, tree)
+
+
+def _dot(x, y):
+    """x . y over the last axis."""
+    return sum(x[..., k] * y[..., k] for k in range(x.shape[-1]))
+
+
+def _cross(x, y):
+    """3D cross product over the last axis."""
+    return jnp.stack([x[..., 1] * y[..., 2] - x[..., 2] * y[..., 1],
+                      x[..., 2] * y[..., 0] - x[..., 0] * y[..., 2],
+                      x[..., 0] * y[..., 1] - x[..., 1] * y[..., 0]], axis=-1)
+
+
+def _cross2(x, y):
+    """2D cross product (a scalar per vector) over the last axis."""
+    return x[..., 0] * y[..., 1] - x[..., 1] * y[..., 0]
+
+
+def _chord(x, y):
+    """|x - y| for unit vectors: about the angle between them, resolved down to rounding (unlike
+    1 - x . y, which float32 rounds to 0 below 3e-4 radians)."""
+    difference = x - y
+    return jnp.sqrt(_dot(difference, difference))
+
+
+def _safe_divide(numerator, denominator, ok):
+    """numerator / denominator where ok, else 0; double `where` keeps NaN out of gradients."""
+    return jnp.where(ok, numerator / jnp.where(ok, denominator, 1.0), 0.0)
+
+
+def _basis(normal):
+    """Two unit vectors completing `normal` to a right-handed orthonormal basis (Duff et al.
+    2017, branch-free and continuous except where normal's z component changes sign)."""
+    x, y, z = normal[0], normal[1], normal[2]
+    sign = jnp.where(z >= 0, 1.0, -1.0).astype(normal.dtype)
+    scale = -1.0 / (sign + z)
+    mixed = x * y * scale
+    first = jnp.stack([1.0 + sign * x * x * scale, sign * mixed, -sign * x])
+    second = jnp.stack([mixed, sign + y * y * scale, -y])
+    return first, second
+
+
+# --------------------------------------------------------------------------------------------
+# 2D: the contact edges and their clipping.
+# --------------------------------------------------------------------------------------------
+
+
+def _polygon_face(vertices, mask, direction, tol) -> _Face:
+    """The edge of a counter-clockwise polygon whose outward normal is best aligned with
+    `direction`, among the edges at its support vertices (within tol of the farthest along
+    `direction`). Edge i joins vertex i and i + 1; padding repeats vertex 0, so rolling the
+    vertices closes the ring in either case."""
+    ends = jnp.roll(vertices, -1, axis=0)
+    support = _dot(vertices, direction)
+    near = support >= jnp.max(support) - tol
+    edges = ends - vertices
+    lengths = jnp.sqrt(_dot(edges, edges))
+    real = mask & (lengths > 0)
+    normals = jnp.stack([edges[:, 1], -edges[:, 0]], axis=-1)
+    normals = normals / jnp.where(real, lengths, 1.0)[:, None]
+    at_support = real & (near | jnp.roll(near, -1))
+    best = jnp.argmax(jnp.where(at_support, _dot(normals, direction), -jnp.inf))
+    start, end = vertices[best], ends[best]
+    return _Face(start[None], end[None], jnp.ones(1, bool), normals[best], (start + end) / 2)
+
+
+def _point_at(face: _Face, across, tangent, normal, deeper: float):
+    """Points of a segment face at coordinates `across` (along `tangent`), clamped to the
+    segment. A segment seen end-on (parallel to the normal) gives its endpoint farthest along
+    deeper * normal, the end that touches the other shape first."""
+    start, end = face.start[0], face.end[0]
+    first, span = _dot(start, tangent), _dot(end - start, tangent)
+    ok = jnp.abs(span) > 0
+    fraction = jnp.clip(_safe_divide(across - first, span, ok), 0.0, 1.0)
+    end_on = jnp.where(deeper * _dot(end - start, normal) > 0, 1.0, 0.0)
+    fraction = jnp.where(ok, fraction, end_on)
+    return start + fraction[:, None] * (end - start)
+
+
+def _clip_segments(face_a: _Face, face_b: _Face, normal, tol) -> _Candidates:
+    """Overlap of the two contact edges seen along the normal: its two ends, lifted onto each
+    edge. (Clipping the incident edge against the reference edge's side planes gives the same
+    interval.)"""
+    tangent = jnp.stack([-normal[1], normal[0]])
+    ends_a = _dot(jnp.stack([face_a.start[0], face_a.end[0]]), tangent)
+    ends_b = _dot(jnp.stack([face_b.start[0], face_b.end[0]]), tangent)
+    low = jnp.maximum(jnp.min(ends_a), jnp.min(ends_b))
+    high = jnp.minimum(jnp.max(ends_a), jnp.max(ends_b))
+    overlap = high >= low - tol
+    middle = (low + high) / 2
+    across = jnp.stack([jnp.minimum(low, middle), jnp.maximum(high, middle)])
+    on_a = _point_at(face_a, across, tangent, normal, 1.0)
+    on_b = _point_at(face_b, across, tangent, normal, -1.0)
+    valid = overlap & jnp.stack([jnp.array(True), across[1] - across[0] > tol])
+    return _Candidates(points=(on_a + on_b) / 2, depths=_dot(on_a - on_b, normal), valid=valid,
+                       across=across[:, None])
+
+
+def _valid_first(candidates: _Candidates) -> _Candidates:
+    """The two 2D candidates, swapped if only the second is valid."""
+    order = jnp.where(candidates.valid[0], jnp.arange(2), jnp.arange(2)[::-1])
+    return jax.tree.map(lambda field: field[order], candidates)
+
+
+# --------------------------------------------------------------------------------------------
+# 3D: the contact faces from the hull edges.
+# --------------------------------------------------------------------------------------------
+
+
+def _num_slots(shape: Polytope) -> int:
+    """Static bound on the edges of one face: 4 for a parallelepiped (at most 3 unique edge
+    directions), else one less than the vertex count (a face with every vertex would be flat)."""
+    if shape.edge_directions.shape[0] <= 3:
+        return 4
+    return max(min(shape.edge_endpoints.shape[0], shape.vertices.shape[0] - 1), 3)
+
+
+def _first_true(mask, count: int):
+    """Indices of the first `count` True entries of a 1D mask (0 past the last), and which of
+    them exist. (jnp.nonzero, a cumsum and a scatter, measured faster on CPU than ranking by
+    element-wise comparisons, even for a box's 12 edges.)"""
+    index = jnp.nonzero(mask, size=count, fill_value=0)[0]
+    return index, jnp.arange(count) < jnp.sum(mask.astype(jnp.int32))
+
+
+def _hull_face(shape: Polytope, vertices, face_normals, direction, tol):
+    """The face of a hull whose outward normal is best aligned with `direction`, among the
+    faces at its support vertices, as edge slots counter-clockwise about that normal; and the
+    hull edge farthest along `direction` (start, end).
+
+    vertices (V, 3) and face_normals (K, 2, 3) are in a's frame. A hull edge belongs to the face
+    when exactly one of its two stored face normals equals the face's: the constructors store
+    one value per face, so the test runs on the stored normals, where equal means identical."""
+    # One gather of every edge's ends; the rest is element-wise or gathers of a few rows.
+    ends = vertices[shape.edge_endpoints]  # (K, 2, 3)
+    support = _dot(ends, direction)  # (K, 2)
+    highest = jnp.max(support)
+    at_support = shape.hull_edge_mask & jnp.any(support >= highest - tol, axis=1)
+    # The edge farthest along `direction` (whose lower end is highest): the shape's edge in an
+    # edge-edge contact.
+    top = jnp.argmax(jnp.where(shape.hull_edge_mask, jnp.min(support, axis=1), -jnp.inf))
+    alignment = jnp.where(at_support[:, None], _dot(face_normals, direction), -jnp.inf)
+    best = jnp.argmax(alignment.reshape(-1))
+    normal = face_normals.reshape(-1, 3)[best]
+    stored = shape.edge_face_normals
+    difference = stored - stored.reshape(-1, 3)[best]
+    eps = jnp.finfo(vertices.dtype).eps
+    same = _dot(difference, difference) <= (16 * eps) ** 2
+    on_face = shape.hull_edge_mask & (same[:, 0] != same[:, 1])
+    index, valid = _first_true(on_face, _num_slots(shape))
+    slots = ends[index]
+    start, end = slots[:, 0], slots[:, 1]
+    count = jnp.maximum(jnp.sum(valid), 1).astype(vertices.dtype)
+    centroid = jnp.sum(jnp.where(valid[:, None], start + end, 0.0), axis=0) / (2 * count)
+    counter_clockwise = _dot(_cross(end - start, normal), start - centroid) > 0
+    start, end = (jnp.where(counter_clockwise[:, None], start, end),
+                  jnp.where(counter_clockwise[:, None], end, start))
+    start = jnp.where(valid[:, None], start, centroid)
+    end = jnp.where(valid[:, None], end, centroid)
+    return _Face(start, end, valid, normal, centroid), (ends[top, 0], ends[top, 1])
+
+
+def _inside(face_start, face_edge, face: _Face, sense, points, tol):
+    """(N,) whether 2D points lie inside a face projected across the normal: on the inner side
+    of each real edge (within tol). `sense` is +1 if the projection keeps the face's
+    counter-clockwise order (N . n > 0), else -1."""
+    # Counter-clockwise edges have the inside on their left: a positive cross product.
+    inward = sense * _cross2(face_edge[None], points[:, None] - face_start[None])
+    length = jnp.sqrt(_dot(face_edge, face_edge))
+    return jnp.all(~face.valid | (inward >= -tol * length), axis=1)
+
+
+def _lift(face: _Face, points, normal):
+    """Signed distance along the normal from points to a face's plane, and where it is defined
+    (the face is not seen edge-on)."""
+    slope = _dot(face.normal, normal)
+    ok = jnp.abs(slope) > _MIN_SLOPE
+    return _safe_divide(_dot(face.normal, face.centroid - points), slope, ok), ok
+
+
+def _clip_faces(face_a: _Face, face_b: _Face, normal, tol) -> _Candidates:
+    """Corners of the overlap of the two faces seen along the normal, as fixed-size candidates:
+    a's corners inside b's face, b's corners inside a's face, and crossings of their edges."""
+    first, second = _basis(normal)
+    across = lambda p: jnp.stack([_dot(p, first), _dot(p, second)], axis=-1)  # noqa: E731
+    start_a, start_b = across(face_a.start), across(face_b.start)
+    edge_a, edge_b = across(face_a.end) - start_a, across(face_b.end) - start_b
+    start_a, start_b, edge_a, edge_b = _materialize((start_a, start_b, edge_a, edge_b))
+    one = jnp.ones((), normal.dtype)
+    corners_a = _corners_inside(face_a, start_a, face_b, start_b, edge_b, normal, tol, one)
+    corners_b = _corners_inside(face_b, start_b, face_a, start_a, edge_a, normal, tol, -one)
+    crossings = _crossings(face_a, face_b, start_a, edge_a, start_b, edge_b, normal)
+    return jax.tree.map(lambda *groups: jnp.concatenate(groups), corners_a, corners_b, crossings)
+
+
+def _corners_inside(face: _Face, start, other: _Face, other_start, other_edge, normal, tol,
+                    side) -> _Candidates:
+    """A face's corners (2D `start`) inside the other face seen along the normal, lifted onto
+    the other face's plane. side = +1 for a's corners, -1 for b's (the depth is how far a's
+    point is above b's along the normal)."""
+    height, ok = _lift(other, face.start, normal)
+    sense = jnp.where(_dot(other.normal, normal) > 0, 1.0, -1.0)
+    valid = face.valid & ok & _inside(other_start, other_edge, other, sense, start, tol)
+    return _Candidates(points=face.start + (height / 2)[:, None] * normal,
+                       depths=-side * height, valid=valid, across=start)
+
+
+def _crossings(face_a: _Face, face_b: _Face, start_a, edge_a, start_b, edge_b,
+               normal) -> _Candidates:
+    """Every crossing of an edge of a's face with an edge of b's face, seen along the normal,
+    (M_a M_b) candidates: the point on each edge, their midpoint and their distance."""
+    denominator = _cross2(edge_a[:, None], edge_b[None, :])
+    offset = start_b[None, :] - start_a[:, None]
+    eps = jnp.finfo(denominator.dtype).eps
+    scale = _dot(edge_a, edge_a)[:, None] * _dot(edge_b, edge_b)[None, :]
+    ok = denominator * denominator > (16 * eps) ** 2 * scale
+    along_a = _safe_divide(_cross2(offset, edge_b[None, :]), denominator, ok)
+    along_b = _safe_divide(_cross2(offset, edge_a[:, None]), denominator, ok)
+    ok = (ok & (along_a >= 0) & (along_a <= 1) & (along_b >= 0) & (along_b <= 1)
+          & face_a.valid[:, None] & face_b.valid[None, :])
+    on_a = face_a.start[:, None] + along_a[..., None] * (face_a.end - face_a.start)[:, None]
+    on_b = face_b.start[None, :] + along_b[..., None] * (face_b.end - face_b.start)[None, :]
+    dim = on_a.shape[-1]
+    return _Candidates(points=((on_a + on_b) / 2).reshape(-1, dim),
+                       depths=_dot(on_a - on_b, normal).reshape(-1), valid=ok.reshape(-1),
+                       across=(start_a[:, None] + along_a[..., None] * edge_a[:, None])
+                       .reshape(-1, 2))
+
+
+# --------------------------------------------------------------------------------------------
+# 3D: reduction to 4 points, and the single point of an edge-edge contact.
+# --------------------------------------------------------------------------------------------
+
+
+def _reduce(candidates: _Candidates, tol) -> _Candidates:
+    """At most 4 candidates spanning the largest area: the deepest (ties broken along a fixed
+    direction), the farthest from it, the one making the largest triangle with those two, and
+    the one adding the most area to that triangle. A step that adds no length or area beyond
+    tol (coincident or collinear candidates) leaves its slot invalid."""
+    valid, depths, across = candidates.valid, candidates.depths, candidates.across
+    deepest = jnp.max(jnp.where(valid, depths, -jnp.inf))
+    tied = valid & (depths >= deepest - tol)
+    first = jnp.argmax(jnp.where(tied, _KEY[0] * across[:, 0] + _KEY[1] * across[:, 1],
+                                 -jnp.inf))
+    offset = across - across[first]
+    distance = jnp.where(valid, _dot(offset, offset), -1.0)
+    second = jnp.argmax(distance)
+    length = jnp.sqrt(jnp.maximum(distance[second], 0.0))
+    third, fourth, has_third, has_fourth = _widest(across, valid, first, second, tol * length)
+    chosen = jnp.stack([first, second, third, fourth])
+    has_second = length > tol
+    return _Candidates(points=candidates.points[chosen], depths=depths[chosen],
+                       valid=jnp.stack([valid[first], has_second, has_second & has_third,
+                                        has_second & has_third & has_fourth]),
+                       across=across[chosen])
+
+
+def _widest(across, valid, first, second, min_area):
+    """The candidate making the largest triangle with `first` and `second`, the one adding the
+    most area to that triangle (area as twice the area), and whether each adds over min_area."""
+    p1, p2 = across[first], across[second]
+    area = jnp.where(valid, jnp.abs(_cross2(p2 - p1, across - p1)), -1.0)
+    third = jnp.argmax(area)
+    p3 = across[third]
+    orientation = jnp.where(_cross2(p2 - p1, p3 - p1) >= 0, 1.0, -1.0)
+    # A point outside the triangle adds the triangles it forms with the edges it sees.
+    added = sum(jnp.maximum(-orientation * _cross2(end - start, across - start), 0.0)
+                for start, end in ((p1, p2), (p2, p3), (p3, p1)))
+    added = jnp.where(valid, added, -1.0)
+    fourth = jnp.argmax(added)
+    return third, fourth, area[third] > min_area, added[fourth] > min_area
+
+
+def _closest_midpoint(start_1, end_1, start_2, end_2):
+    """Midpoint of the closest points of two segments (Ericson, Real-Time Collision Detection
+    5.1.9), with every division guarded so that degenerate segments give finite values."""
+    d1, d2, r = end_1 - start_1, end_2 - start_2, start_1 - start_2
+    a, e, f = _dot(d1, d1), _dot(d2, d2), _dot(d2, r)
+    c, b = _dot(d1, r), _dot(d1, d2)
+    denominator = a * e - b * b
+    eps = jnp.finfo(a.dtype).eps
+    s = jnp.clip(_safe_divide(b * f - c * e, denominator, denominator > eps * a * e), 0.0, 1.0)
+    t = _safe_divide(b * s + f, e, e > 0)
+    s = jnp.where(t < 0, jnp.clip(_safe_divide(-c, a, a > 0), 0.0, 1.0), s)
+    s = jnp.where(t > 1, jnp.clip(_safe_divide(b - c, a, a > 0), 0.0, 1.0), s)
+    t = jnp.clip(t, 0.0, 1.0)
+    return (start_1 + s * d1 + start_2 + t * d2) / 2
