@@ -2,6 +2,9 @@
 
 from jaxsat._batching import query_batch as query_batch
 from jaxsat._batching import query_pairs as query_pairs
+from jaxsat._broadphase import CandidatePairs as CandidatePairs
+from jaxsat._broadphase import broad_phase as broad_phase
+from jaxsat._broadphase import world_aabbs as world_aabbs
 from jaxsat._compound import Compound as Compound
 from jaxsat._compound import CompoundPenetration as CompoundPenetration
 from jaxsat._compound import compound as compound
@@ -21,6 +24,8 @@ from jaxsat._narrowphase import penetration as penetration
 from jaxsat._poses import Pose as Pose
 from jaxsat._poses import pose2 as pose2
 from jaxsat._poses import pose3 as pose3
+from jaxsat._scene import SceneCollisions as SceneCollisions
+from jaxsat._scene import collide as collide
 from jaxsat._shapes import Polytope as Polytope
 from jaxsat._shapes import box as box
 from jaxsat._shapes import polygon as polygon
@@ -32,6 +37,7 @@ from jaxsat._smoothing import smoothing_error_bound as smoothing_error_bound
 __version__ = "0.1.0"
 
 __all__ = [
+    "CandidatePairs",
     "ClosestPoints",
     "Compound",
     "CompoundPenetration",
@@ -39,8 +45,11 @@ __all__ = [
     "Penetration",
     "Polytope",
     "Pose",
+    "SceneCollisions",
     "box",
+    "broad_phase",
     "closest_points",
+    "collide",
     "compound",
     "compound_intersects",
     "compound_penetration",
@@ -60,4 +69,5 @@ __all__ = [
     "smoothing_error_bound",
     "stack",
     "stack_compounds",
+    "world_aabbs",
 ]

@@ -1,0 +1,163 @@
+"""Scene queries: `collide` must equal the brute-force all-pairs narrow phase."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxsat
+
+
+def _scene_3d(rng, count, kind, world, dtype=np.float64):
+    """`count` random boxes or 12-point hulls (sizes 0.2 to 1) in a cube of side `world`."""
+    if kind == "boxes":
+        shapes = [jaxsat.box(rng.uniform(0.1, 0.5, 3), dtype=dtype) for _ in range(count)]
+    else:
+        shapes = [jaxsat.polyhedron(rng.normal(size=(12, 3)) * rng.uniform(0.1, 0.3),
+                                    max_vertices=12, dtype=dtype) for _ in range(count)]
+    positions = rng.uniform(0, world, (count, 3)).astype(dtype)
+    poses = jax.vmap(jaxsat.pose3)(jnp.asarray(positions), jnp.asarray(rng.normal(size=(count, 4))
+                                                                        .astype(dtype)))
+    return jaxsat.stack(shapes), poses
+
+
+def _scene_2d(rng, count, world, dtype=np.float64):
+    """`count` random regular polygons (3 to 8 sides) padded to 8 vertices."""
+    shapes = [jaxsat.regular_polygon(int(rng.integers(3, 9)), rng.uniform(0.1, 0.5), 8,
+                                     dtype=dtype) for _ in range(count)]
+    xy = rng.uniform(0, world, (count, 2)).astype(dtype)
+    angles = rng.uniform(-np.pi, np.pi, count).astype(dtype)
+    return jaxsat.stack(shapes), jax.vmap(jaxsat.pose2)(xy[:, 0], xy[:, 1], angles)
+
+
+def _brute_force(shapes, poses, keep=None):
+    """Penetration of every pair i < j (vmap over all of them) -> {(i, j): (depth, normal)}."""
+    count = poses.translation.shape[0]
+    rows, cols = np.triu_indices(count, 1)
+    take = lambda tree, index: jax.tree.map(lambda x: x[index], tree)  # noqa: E731
+    hits = jax.jit(jax.vmap(jaxsat.penetration))(take(shapes, rows), take(poses, rows),
+                                                  take(shapes, cols), take(poses, cols))
+    depth, normal = np.asarray(hits.depth), np.asarray(hits.normal)
+    colliding = depth >= 0
+    if keep is not None:
+        colliding &= keep[rows, cols]
+    return {(int(rows[k]), int(cols[k])): (depth[k], normal[k]) for k in np.nonzero(colliding)[0]}
+
+
+def _colliding(result):
+    """{(i, j): slot} of the colliding slots of a SceneCollisions."""
+    slots = np.nonzero(np.asarray(result.colliding))[0]
+    pairs = np.asarray(result.pairs)
+    found = {(int(pairs[s, 0]), int(pairs[s, 1])): int(s) for s in slots}
+    assert len(found) == len(slots), "a pair was reported twice"
+    return found
+
+
+SCENES = {
+    "2d-polygons": lambda rng, dtype: _scene_2d(rng, 200, 8.0, dtype),
+    "3d-boxes": lambda rng, dtype: _scene_3d(rng, 200, "boxes", 6.0, dtype),
+    "3d-hulls": lambda rng, dtype: _scene_3d(rng, 80, "hulls", 3.5, dtype),
+}
+
+
+@pytest.mark.parametrize("name,dtype", [("2d-polygons", np.float64), ("3d-boxes", np.float64),
+                                        ("3d-hulls", np.float64), ("3d-boxes", np.float32)])
+def test_collide_equals_brute_force(name, dtype):
+    shapes, poses = SCENES[name](np.random.default_rng(len(name)), dtype)
+    truth = _brute_force(shapes, poses)
+    assert len(truth) >= 10, "the scene should have some collisions"
+    result = jaxsat.collide(shapes, poses, capacity=1024)
+    assert int(result.overflow) == 0
+    found = _colliding(result)
+    assert set(found) == set(truth)
+    # Same kernel, compiled in another program: equal up to rounding (sizes are about 1).
+    tolerance = 1e-12 if dtype == np.float64 else 1e-5
+    for pair, slot in found.items():
+        np.testing.assert_allclose(result.depth[slot], truth[pair][0], atol=tolerance)
+        np.testing.assert_allclose(result.normal[slot], truth[pair][1], atol=tolerance)
+    assert result.depth.dtype == dtype and result.pairs.dtype == jnp.int32
+
+
+def test_levels_agree_and_skip_work():
+    shapes, poses = SCENES["3d-boxes"](np.random.default_rng(2), np.float64)
+    by_level = {level: jaxsat.collide(shapes, poses, capacity=512, level=level)
+                for level in ("intersects", "penetration")}
+    assert by_level["intersects"].depth is None and by_level["intersects"].contacts is None
+    assert by_level["penetration"].contacts is None
+    np.testing.assert_array_equal(by_level["intersects"].colliding,
+                                  by_level["penetration"].colliding)
+    np.testing.assert_array_equal(by_level["intersects"].pairs, by_level["penetration"].pairs)
+
+
+def test_filters_equal_brute_force():
+    rng = np.random.default_rng(4)
+    shapes, poses = _scene_2d(rng, 200, 6.0)
+    groups = rng.choice([1, 2, 4], 200).astype(np.int32)
+    masks = rng.choice([7, 3, 6], 200).astype(np.int32)
+    body_ids = np.arange(200) // 3  # consecutive triples are parts of one body
+    keep = (((groups[:, None] & masks[None]) != 0) & ((groups[None] & masks[:, None]) != 0)
+            & (body_ids[:, None] != body_ids[None]))
+    truth = _brute_force(shapes, poses, keep)
+    result = jaxsat.collide(shapes, poses, capacity=1024, groups=groups, masks=masks,
+                            body_ids=body_ids)
+    assert set(_colliding(result)) == set(truth) and len(truth) >= 10
+
+
+def test_overflow_is_reported():
+    shapes, poses = SCENES["2d-polygons"](np.random.default_rng(9), np.float64)
+    truth = _brute_force(shapes, poses)
+    full = jaxsat.collide(shapes, poses, capacity=1024)
+    small = jaxsat.collide(shapes, poses, capacity=8)
+    assert int(small.overflow) == int(full.count) - 8 > 0
+    assert set(_colliding(small)) <= set(truth)
+
+
+def test_collide_vmaps_over_scenes():
+    rng = np.random.default_rng(6)
+    scenes = [_scene_2d(rng, 100, 5.0) for _ in range(2)]
+    # Pad both scenes' shapes to one size class so that they stack.
+    shapes = jax.tree.map(lambda *xs: jnp.stack(xs), *[s for s, _ in scenes])
+    poses = jax.tree.map(lambda *xs: jnp.stack(xs), *[p for _, p in scenes])
+    batched = jax.vmap(lambda s, p: jaxsat.collide(s, p, capacity=256))(shapes, poses)
+    for k, (scene_shapes, scene_poses) in enumerate(scenes):
+        one = jax.tree.map(lambda x, k=k: x[k], batched)
+        assert set(_colliding(one)) == set(_brute_force(scene_shapes, scene_poses))
+
+
+def test_collide_rejects_bad_input():
+    shapes, poses = _scene_2d(np.random.default_rng(0), 4, 1.0)
+    with pytest.raises(ValueError, match="level"):
+        jaxsat.collide(shapes, poses, capacity=8, level="everything")
+    with pytest.raises(ValueError, match="one leading axis"):
+        jaxsat.collide(jaxsat.box([1.0, 1.0]), jaxsat.pose2(0.0, 0.0, 0.0), capacity=8)
+    with pytest.raises(ValueError, match="capacity"):
+        jaxsat.collide(shapes, poses, capacity=-1)
+    with pytest.raises(ValueError, match="Polytope"):
+        jaxsat.collide(poses, shapes, capacity=8)
+
+
+def test_collide_sharded_over_four_devices_equals_one_device():
+    from multidevice import run_on_devices
+
+    output = run_on_devices('''
+        import jax, numpy as np
+        import jaxsat
+        from test_scene import _scene_3d, _colliding
+        shapes, poses = _scene_3d(np.random.default_rng(1), 150, "boxes", 5.0)
+        one = jaxsat.collide(shapes, poses, capacity=510)
+        for options in ({"devices": 4}, {"devices": tuple(jax.devices()[1:3])}):
+            many = jaxsat.collide(shapes, poses, capacity=510, **options)
+            assert _colliding(many) == _colliding(one) and len(_colliding(one)) > 5
+            # A different batch size per device may round differently, by an ulp or so.
+            np.testing.assert_allclose(many.depth, one.depth, rtol=0, atol=1e-14)
+            np.testing.assert_allclose(many.normal, one.normal, rtol=0, atol=1e-14)
+        # The same chunks give bit-identical results whatever the number of devices.
+        chunked = jaxsat.collide(shapes, poses, capacity=510, chunk_size=32)
+        sharded = jaxsat.collide(shapes, poses, capacity=510, chunk_size=32, devices=4)
+        np.testing.assert_array_equal(chunked.depth, sharded.depth)
+        np.testing.assert_array_equal(chunked.normal, sharded.normal)
+        print("ok", len(_colliding(one)))
+    ''')
+    assert output.startswith("ok")
