@@ -40,3 +40,15 @@ def test_quickstart_commands():
     text = README.read_text()
     assert 'pip install -e ".[dev]" && python -m jaxsat demo' in text
     assert "python -m pytest" in text
+
+
+def test_readme_scene_example_runs():
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
+    assert len(blocks) >= 3, "README.md has no scene example"
+    result = subprocess.run([sys.executable, "-c", blocks[2]], capture_output=True, text=True,
+                            timeout=300, check=False)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0] == "4 [0.1 0.1 0.1 0.1] [0. 0. 1.]", lines[0]
+    assert lines[1] == "0 25", lines[1]
+    assert lines[2] == "2 False", lines[2]
