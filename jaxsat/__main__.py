@@ -1,11 +1,17 @@
-"""Command line: `python -m jaxsat demo` (also installed as the `jaxsat` console script)."""
+"""Command line: `python -m jaxsat demo` and `python -m jaxsat bench` (also installed as the
+`jaxsat` console script)."""
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
+import pathlib
 import sys
 from collections.abc import Sequence
+
+PEERS_SCRIPT = pathlib.Path(__file__).resolve().parent.parent / "benchmarks" / "peers.py"
+"""The peers benchmark of a source checkout (found when jaxsat is installed editable)."""
 
 
 def _positive_int(text: str) -> int:
@@ -39,13 +45,41 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--output", default="jaxsat_demo.png",
                       help="where to save the picture (default: %(default)s)")
     demo.add_argument("--no-plot", action="store_true", help="do not draw the picture")
+    bench = commands.add_parser(
+        "bench", help="jaxsat against its peers (MJX, MuJoCo, Coal, jax2d, pymunk, ...)",
+        description="Run the peers benchmark benchmarks/peers.py of this source checkout "
+                    "(quick run by default) and print its table. Needs the peers: "
+                    "pip install -e \".[bench]\"; a missing peer is skipped with a note.",
+        epilog="Any other argument is passed on to benchmarks/peers.py, for example "
+               "--cases 3d-boxes --methods jaxsat mjx, or --list to see which peers are "
+               "installed; see python benchmarks/peers.py --help.")
+    bench.add_argument("--full", action="store_true",
+                       help="the full run (sizes 1e3-1e5, about 15 minutes on 2 cores) "
+                            "instead of --quick")
     return parser
+
+
+def run_bench(full: bool, extra: Sequence[str], script: pathlib.Path = PEERS_SCRIPT) -> int:
+    """Run benchmarks/peers.py in this process (with --quick unless `full`)."""
+    if not script.is_file():
+        print(f"error: {script} not found. `python -m jaxsat bench` runs the peers benchmark "
+              "of a jaxsat source checkout: clone the repository and install it editable with "
+              "its peers (pip install -e \".[bench]\"), then run it from there.",
+              file=sys.stderr)
+        return 2
+    spec = importlib.util.spec_from_file_location("jaxsat_bench_peers", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    argv = list(extra) if full or "--quick" in extra else ["--quick", *extra]
+    return module.main(argv)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `python -m jaxsat` and of the `jaxsat` console script."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra and args.command != "bench":
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if args.command is None:
         parser.print_help()
         return 2
@@ -59,6 +93,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         run_demo(pairs=args.pairs, seed=args.seed, repeats=args.repeats, cases=args.cases,
                  output=None if args.no_plot else args.output)
         return 0
+    if args.command == "bench":
+        return run_bench(args.full, extra)
     parser.error(f"unknown command {args.command!r}")  # unreachable: argparse checks choices
     return 2
 

@@ -1,0 +1,98 @@
+"""`python -m jaxsat bench` and benchmarks/peers.py on tiny cases, without any peer package.
+
+Peers (MJX, MuJoCo, Coal, jax2d, pymunk, collision) come with the `bench` extra, which CI does
+not install: these tests force a peer to look missing and check that it is reported as skipped,
+and run only jaxsat and the script's own NumPy SAT against the SciPy oracle.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import sys
+
+import pytest
+
+from jaxsat.__main__ import PEERS_SCRIPT, main, run_bench
+
+pytest.importorskip("scipy")  # the oracle of benchmarks/peers.py
+BENCHMARKS = pathlib.Path(__file__).resolve().parent.parent / "benchmarks"
+TINY = ["--cases", "2d-small", "--sizes", "64", "--error-pairs", "64", "--grad-pairs", "4",
+        "--loop-pairs", "64", "--repeats", "1", "--pool", "16", "--no-plot", "--no-progress"]
+
+
+@pytest.fixture
+def peers(monkeypatch):
+    """benchmarks/peers.py as a module, with pymunk made to look not installed."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    monkeypatch.setitem(sys.modules, "pymunk", None)
+    import peers as module
+
+    return module
+
+
+def test_bench_help_explains_the_command(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["bench", "--help"])
+    assert exit_.value.code == 0
+    text = capsys.readouterr().out
+    assert "peers" in text and "--full" in text and ".[bench]" in text
+
+
+def test_bench_script_is_found_in_the_checkout():
+    assert PEERS_SCRIPT == BENCHMARKS / "peers.py"
+    assert PEERS_SCRIPT.is_file()
+
+
+def test_bench_without_checkout_says_what_to_do(tmp_path, capsys):
+    assert run_bench(False, [], script=tmp_path / "benchmarks" / "peers.py") == 2
+    error = capsys.readouterr().err
+    assert "not found" in error and 'pip install -e ".[bench]"' in error
+
+
+def test_other_commands_still_reject_unknown_arguments(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["demo", "--no-such-option"])
+    assert exit_.value.code == 2
+    assert "unrecognized arguments" in capsys.readouterr().err
+
+
+def test_list_reports_a_missing_peer(peers, capsys):
+    assert peers.main(["--list"]) == 0
+    lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines()[1:]}
+    assert set(peers.METHODS) <= set(lines)
+    assert "missing pymunk (pip install pymunk)" in lines["pymunk"]
+    assert lines["jaxsat"].endswith("installed")
+
+
+def test_bench_runs_quick_peers_and_skips_missing_ones(peers, tmp_path, capsys):
+    prefix = tmp_path / "peers"
+    argv = ["bench", *TINY, "--methods", "numpy-sat-f32", "numpy-sat-f64", "pymunk",
+            "--output", str(prefix)]
+    assert main(argv) == 0
+    table = capsys.readouterr().out
+    assert "| 2d-small | numpy-sat-f64 | depth+normal | float64 |" in table
+    assert "not installed: pymunk" in table
+    result = json.loads(prefix.with_name("peers.json").read_text())
+    assert result["config"]["quick"] is True
+    assert len(result["machine"]["load_average_start"]) == 3
+    rows = {row["method"]: row for row in result["results"]}
+    assert "skipped" in rows["pymunk"]
+    exact, single = rows["numpy-sat-f64"]["errors"], rows["numpy-sat-f32"]["errors"]
+    assert exact["overlapping"] > 10 and exact["wrong_overlap"] == 0
+    assert exact["depth_error_max"] < 1e-12 and exact["normal_error_max_deg"] < 1e-9
+    assert single["depth_error_max"] < 1e-5
+    assert rows["numpy-sat-f64"]["sizes"]["64"]["pairs_per_second"] > 0
+    assert (tmp_path / "peers.md").read_text().count("| 2d-small |") == 3
+
+
+def test_jaxsat_rows_match_the_oracle_with_gradients(peers, tmp_path):
+    prefix = tmp_path / "jaxsat"
+    assert peers.main([*TINY, "--methods", "jaxsat", "--output", str(prefix)]) == 0
+    row = json.loads(prefix.with_name("jaxsat.json").read_text())["results"][0]
+    errors = row["errors"]
+    assert row["precision"] == "float32" and row["gradients"] == "jax.grad"
+    assert errors["wrong_overlap"] == 0 and errors["depth_error_max"] < 1e-5
+    assert errors["normal_error_max_deg"] < 1e-3
+    assert errors["grad_pairs"] == 4 and errors["grad_error_max"] < 1e-4
+    assert row["setup_s"] > 0
