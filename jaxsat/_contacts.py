@@ -48,7 +48,9 @@ normal counts as aligned with it. If neither shape has one, the contact is edge-
 point). Well above rounding, so resting contacts with small tilts keep their full manifold."""
 
 _TIE_ANGLE = 1e-3
-"""b's face becomes the reference only if it is better aligned than a's by this angle (chord)."""
+"""b's face becomes the reference only if it is better aligned than a's by this angle (chord);
+in the reduction to 4 points, depths that differ by less than such a tilt across the contact
+count as equal."""
 
 _LENGTH_TOLERANCE = 64
 """Length tolerance, in units of eps times the shapes' size (largest local coordinate)."""
@@ -131,20 +133,29 @@ def contacts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
              margin=0.0) -> Contacts:
     """Contact manifold of one pair of convex shapes: up to 2 (2D) or 4 (3D) points.
 
-    The normal is `penetration`'s. The reference face is a's face whose outward normal is best
-    aligned with +normal, or b's face best aligned with -normal if that is better aligned by a
-    clear tolerance (so it does not flip between frames when the two faces tie); the incident
-    face is the other shape's face most anti-parallel to it (both faces are taken among those at
-    the shape's deepest vertices). The incident face is clipped against the side planes of the
-    reference face (along the normal). Each point's depth is how far the incident face lies
-    below the reference plane there, measured along the normal; the deepest point's depth is
-    the penetration depth for face contacts. Each point is reported as the midpoint between the
-    incident point and its projection along the normal onto the reference face: it lies inside
-    both shapes wherever each shape is at least depth/2 thick there along the normal (always
-    for boxes), and within depth/2 of each shape otherwise. The result does not depend on which
-    face is the reference. In 3D the clipped polygon is reduced to at most 4 points spanning the
-    largest area (the deepest point, the farthest from it, the largest triangle, the largest
-    added area); coincident points count once.
+    The normal is `penetration`'s. Faces: a's face whose outward normal is best aligned with
+    +normal and b's face best aligned with -normal, each among the faces at that shape's
+    deepest vertices. The reference face is a's, unless b's is better aligned by a clear
+    tolerance (so that it does not flip between frames when the two faces tie, as for a box
+    resting on an equal box); the other one is the incident face (most anti-parallel to the
+    normal, and so to the reference normal up to that tolerance). The incident face is clipped
+    against the side planes of the reference face, taken along the normal. Each point's depth
+    is how far the incident face lies below the reference plane there, measured along the
+    normal; the deepest point's depth is the penetration depth for face contacts.
+
+    Each point is reported as the midpoint between the incident point and its projection
+    along the normal onto the reference face: half its depth inside each shape's surface. It
+    lies inside both shapes wherever each is at least depth/2 thick there along the normal
+    (always for boxes), and within depth/2 of each shape otherwise (near a sharp rim).
+
+    Depth and midpoint are symmetric in the two faces, so the result does not depend on
+    which one is the reference. In 3D the clipped polygon is reduced to at most 4 points
+    spanning the largest area: the deepest point, the farthest from it, the largest triangle,
+    the largest added area. Coincident points count once. Depths within what a tilt of 1e-3
+    radians across the shapes explains count as equally deep, so in near-flat contacts with
+    more than 4 corners the deepest kept point can be shallower than the penetration depth by
+    up to 2e-3 times the shapes' size (their largest local coordinate); this keeps the 4
+    points at stable corners.
 
     When no face of either shape is aligned with the normal (3D edge-edge contact), the
     manifold is a single point: the midpoint of the closest points of the two edges, with the
@@ -186,9 +197,11 @@ class _Frame(NamedTuple):
     b_vertices: jax.Array
     """(V_b, D) float: b's vertices."""
     b_rotation: jax.Array
-    """(D, D) float: rotation from b's frame to a's."""
+    """(D, D) float: rotation taking b's local directions into a's frame."""
+    size: jax.Array
+    """() float: the shapes' size (their largest local coordinate)."""
     tol: jax.Array
-    """() float: length tolerance (a few eps times the shapes' size)."""
+    """() float: length tolerance (a few eps times the size)."""
     margin: jax.Array
     """() float: the margin."""
 
@@ -218,8 +231,9 @@ def _frame(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, normal, margin)
     b_vertices = _rotate(rotation, b.vertices) + translation
     size = jnp.maximum(jnp.max(jnp.abs(a.vertices)), jnp.max(jnp.abs(b.vertices)))
     tol = _LENGTH_TOLERANCE * jnp.finfo(a.dtype).eps * size
-    normal, b_vertices, tol = _materialize((_rotate(pose_a.rotation.T, normal), b_vertices, tol))
-    return _Frame(normal, b_vertices, rotation, tol, jnp.asarray(margin, a.dtype))
+    normal, b_vertices, size, tol = _materialize(
+        (_rotate(pose_a.rotation.T, normal), b_vertices, size, tol))
+    return _Frame(normal, b_vertices, rotation, size, tol, jnp.asarray(margin, a.dtype))
 
 
 def _polygon_contacts(a: Polytope, b: Polytope, frame: _Frame):
@@ -240,7 +254,7 @@ def _hull_contacts(a: Polytope, b: Polytope, frame: _Frame):
         _hull_face(a, a.vertices, a.edge_face_normals, frame.normal, frame.tol),
         _hull_face(b, frame.b_vertices, b_normals, -frame.normal, frame.tol)))
     clipped = _clip_faces(face_a, face_b, frame.normal, frame.tol)
-    candidates = _reduce(_materialize(_keep_near(clipped, frame)), frame.tol)
+    candidates = _reduce(_materialize(_keep_near(clipped, frame)), frame.tol, frame.size)
     edge_edge = jnp.minimum(_chord(face_a.normal, frame.normal),
                             _chord(face_b.normal, -frame.normal)) > _FACE_ANGLE
     return candidates, (*edge_a, *edge_b), edge_edge, face_a, face_b
@@ -269,7 +283,7 @@ def _keep_near(candidates: _Candidates, frame: _Frame) -> _Candidates:
 
 
 # --------------------------------------------------------------------------------------------
-# Small spelled-out vector helpers (no dot_general, so that XLA fuses them).
+# Helpers. Vector operations are spelled out (no dot_general), so that XLA fuses them.
 # --------------------------------------------------------------------------------------------
 
 
@@ -345,10 +359,10 @@ def _polygon_face(vertices, mask, direction, tol) -> _Face:
     support = _dot(vertices, direction)
     near = support >= jnp.max(support) - tol
     edges = ends - vertices
-    lengths = jnp.sqrt(_dot(edges, edges))
-    real = mask & (lengths > 0)
+    squared = _dot(edges, edges)
+    real = mask & (squared > 0)  # padding edges have zero length
     normals = jnp.stack([edges[:, 1], -edges[:, 0]], axis=-1)
-    normals = normals / jnp.where(real, lengths, 1.0)[:, None]
+    normals = normals * jax.lax.rsqrt(jnp.where(real, squared, 1.0))[:, None]
     at_support = real & (near | jnp.roll(near, -1))
     best = jnp.argmax(jnp.where(at_support, _dot(normals, direction), -jnp.inf))
     start, end = vertices[best], ends[best]
@@ -417,38 +431,42 @@ def _first_true(mask, count: int):
 def _hull_face(shape: Polytope, vertices, face_normals, direction, tol):
     """The face of a hull whose outward normal is best aligned with `direction`, among the
     faces at its support vertices, as edge slots counter-clockwise about that normal; and the
-    hull edge farthest along `direction` (start, end).
-
-    vertices (V, 3) and face_normals (K, 2, 3) are in a's frame. A hull edge belongs to the face
-    when exactly one of its two stored face normals equals the face's: the constructors store
-    one value per face, so the test runs on the stored normals, where equal means identical."""
+    hull edge farthest along `direction` (its two ends): the shape's edge in an edge-edge
+    contact. vertices (V, 3) and face_normals (K, 2, 3) are in a's frame."""
     # One gather of every edge's ends; the rest is element-wise or gathers of a few rows.
     ends = vertices[shape.edge_endpoints]  # (K, 2, 3)
     support = _dot(ends, direction)  # (K, 2)
-    highest = jnp.max(support)
-    at_support = shape.hull_edge_mask & jnp.any(support >= highest - tol, axis=1)
-    # The edge farthest along `direction` (whose lower end is highest): the shape's edge in an
-    # edge-edge contact.
-    top = jnp.argmax(jnp.where(shape.hull_edge_mask, jnp.min(support, axis=1), -jnp.inf))
+    at_support = shape.hull_edge_mask & jnp.any(support >= jnp.max(support) - tol, axis=1)
     alignment = jnp.where(at_support[:, None], _dot(face_normals, direction), -jnp.inf)
-    best = jnp.argmax(alignment.reshape(-1))
-    normal = face_normals.reshape(-1, 3)[best]
+    best = jnp.argmax(alignment.reshape(-1))  # over (edge, side) pairs
+    top = jnp.argmax(jnp.where(shape.hull_edge_mask, jnp.min(support, axis=1), -jnp.inf))
+    face = _face_slots(shape, ends, best, face_normals.reshape(-1, 3)[best])
+    return face, (ends[top, 0], ends[top, 1])
+
+
+def _face_slots(shape: Polytope, ends, best, normal) -> _Face:
+    """The face whose normal is stored at flattened (edge, side) `best`, as edge slots.
+
+    A hull edge belongs to the face when exactly one of its two stored face normals equals the
+    face's (both: an edge inside a face, which the constructors never store). The constructors
+    store one value per face, so equal means identical; the test runs on the stored normals,
+    before any rotation."""
     stored = shape.edge_face_normals
     difference = stored - stored.reshape(-1, 3)[best]
-    eps = jnp.finfo(vertices.dtype).eps
+    eps = jnp.finfo(ends.dtype).eps
     same = _dot(difference, difference) <= (16 * eps) ** 2
     on_face = shape.hull_edge_mask & (same[:, 0] != same[:, 1])
     index, valid = _first_true(on_face, _num_slots(shape))
-    slots = ends[index]
-    start, end = slots[:, 0], slots[:, 1]
-    count = jnp.maximum(jnp.sum(valid), 1).astype(vertices.dtype)
+    start, end = ends[index, 0], ends[index, 1]
+    count = jnp.maximum(jnp.sum(valid), 1).astype(ends.dtype)
     centroid = jnp.sum(jnp.where(valid[:, None], start + end, 0.0), axis=0) / (2 * count)
-    counter_clockwise = _dot(_cross(end - start, normal), start - centroid) > 0
-    start, end = (jnp.where(counter_clockwise[:, None], start, end),
-                  jnp.where(counter_clockwise[:, None], end, start))
+    # Each edge runs counter-clockwise about the normal if its outward side faces away from
+    # the centroid; swapping the others makes every corner start exactly one edge.
+    forward = (_dot(_cross(end - start, normal), start - centroid) > 0)[:, None]
+    start, end = jnp.where(forward, start, end), jnp.where(forward, end, start)
     start = jnp.where(valid[:, None], start, centroid)
     end = jnp.where(valid[:, None], end, centroid)
-    return _Face(start, end, valid, normal, centroid), (ends[top, 0], ends[top, 1])
+    return _Face(start, end, valid, normal, centroid)
 
 
 def _inside(face_start, face_edge, face: _Face, sense, points, tol):
@@ -523,14 +541,20 @@ def _crossings(face_a: _Face, face_b: _Face, start_a, edge_a, start_b, edge_b,
 # --------------------------------------------------------------------------------------------
 
 
-def _reduce(candidates: _Candidates, tol) -> _Candidates:
-    """At most 4 candidates spanning the largest area: the deepest (ties broken along a fixed
-    direction), the farthest from it, the one making the largest triangle with those two, and
-    the one adding the most area to that triangle. A step that adds no length or area beyond
-    tol (coincident or collinear candidates) leaves its slot invalid."""
+def _reduce(candidates: _Candidates, tol, size) -> _Candidates:
+    """At most 4 candidates spanning the largest area: the deepest, the farthest from it, the
+    one making the largest triangle with those two, and the one adding the most area to that
+    triangle. Depths within what a tilt of _TIE_ANGLE across the shapes (2 * size) explains
+    count as equally deep, the tie going to the candidate farthest along a fixed direction. A
+    step that adds no length or area beyond tol (coincident or collinear candidates) leaves
+    its slot invalid."""
     valid, depths, across = candidates.valid, candidates.depths, candidates.across
     deepest = jnp.max(jnp.where(valid, depths, -jnp.inf))
-    tied = valid & (depths >= deepest - tol)
+    # Depths that a tilt of _TIE_ANGLE across the shapes explains count as equal: in a
+    # near-flat contact the deepest point could be a sliver corner (where two nearly parallel
+    # edges cross) that rounding or tiny tilts move from frame to frame.
+    slack = tol + _TIE_ANGLE * 2 * size
+    tied = valid & (depths >= deepest - slack)
     first = jnp.argmax(jnp.where(tied, _KEY[0] * across[:, 0] + _KEY[1] * across[:, 1],
                                  -jnp.inf))
     offset = across - across[first]
