@@ -291,10 +291,17 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
         # The winner's depth is measured again by projecting both shapes on its unit axis:
         # exactly the depth its normal gives (the Gauss-map shortcut loses float32 digits).
         # Boxes need no such fix, but XLA ran them faster this way than with the group minima.
-        _, a_high = _extremes(axis[None], a.vertices)
-        b_low, _ = _extremes(axis[None], b_vertices_in_a)
-        depth = a_high[0] - b_low[0]
+        depth = _support(axis, a.vertices) - -_support(-axis, b_vertices_in_a)
     return Penetration(depth=depth, normal=_rotate(pose_a.rotation, axis))
+
+
+def _support(axis, points):
+    """max over points of axis . point, read at its argmax so that the gradient reaches one
+    point with weight 1. A chain of jnp.maximum spreads it over ties, and under jit XLA may
+    recompute the tied values with different roundings in the backward pass, so that the
+    weights no longer summed to 1 (a depth gradient of norm 1.4 for a box pair)."""
+    projections = sum(axis[k] * points[:, k] for k in range(points.shape[-1]))
+    return projections[jnp.argmax(projections)]
 
 
 def _world_aabb(shape: Polytope, pose: Pose) -> tuple[jax.Array, jax.Array]:
