@@ -23,7 +23,7 @@ import numpy as np
 
 from jaxsat import _shapes as shapes
 from jaxsat._decompose import decompose
-from jaxsat._narrowphase import intersects, penetration
+from jaxsat._narrowphase import _check_one_pair, intersects, penetration
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
@@ -260,14 +260,7 @@ def _check_query(a: Compound, pose_a: Pose, b: Compound, pose_b: Pose) -> None:
     for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
         if not isinstance(pose, Pose):
             raise ValueError(f"{name} must be a jaxsat.Pose, got {type(pose).__name__}")
-    pose_a_batch, pose_b_batch = pose_a.translation.shape[:-1], pose_b.translation.shape[:-1]
-    if a.batch_shape or b.batch_shape or pose_a_batch or pose_b_batch:
-        raise ValueError("compound queries take one pair; batch them with jax.vmap (got batched "
-                         f"inputs: a {a.batch_shape}, b {b.batch_shape}, pose_a {pose_a_batch}, "
-                         f"pose_b {pose_b_batch})")
-    if len({a.dim, b.dim, pose_a.dim, pose_b.dim}) != 1:
-        raise ValueError(f"a, pose_a, b, pose_b must share one dimension, got {a.dim}D a, "
-                         f"{b.dim}D b, {pose_a.dim}D pose_a, {pose_b.dim}D pose_b")
+    _check_one_pair(a, pose_a, b, pose_b)
 
 
 def _prepare(a, pose_a, b, pose_b) -> tuple[Compound, Compound, jax.Array]:

@@ -42,6 +42,11 @@ def _check_pair(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> None:
                               ("pose_a", pose_a, Pose), ("pose_b", pose_b, Pose)):
         if not isinstance(value, kind):
             raise ValueError(f"{name} must be a jaxsat.{kind.__name__}, got {type(value).__name__}")
+    _check_one_pair(a, pose_a, b, pose_b)
+
+
+def _check_one_pair(a, pose_a: Pose, b, pose_b: Pose) -> None:
+    """Unbatched inputs of one dimension; a and b: anything with batch_shape and dim."""
     pose_a_batch, pose_b_batch = pose_a.translation.shape[:-1], pose_b.translation.shape[:-1]
     if a.batch_shape or b.batch_shape or pose_a_batch or pose_b_batch:
         raise ValueError("queries take one pair; batch them with jax.vmap (got batched inputs: "
