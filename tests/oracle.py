@@ -131,3 +131,14 @@ def evaluate(world_a, world_b, tie_tolerance: float = 0.0) -> Oracle:
     distance = distance_to_hull(hull) if depths[best] < 0 else 0.0
     return Oracle(depth=float(depths[best]), normal=normals[best].copy(), normal_is_unique=unique,
                   distance=distance, size=max(bounding_radius(world_a), bounding_radius(world_b)))
+
+
+def inside_polygon(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """Even-odd rule by horizontal ray casting, for any simple polygon."""
+    x, y = points[:, 0:1], points[:, 1:2]
+    x0, y0 = ring[None, :, 0], ring[None, :, 1]
+    x1, y1 = np.roll(ring, -1, axis=0)[None, :, 0], np.roll(ring, -1, axis=0)[None, :, 1]
+    straddles = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        crossing_x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return np.sum(straddles & (x < crossing_x), axis=1) % 2 == 1

@@ -224,17 +224,6 @@ def check_pair_result(depth, normal, pieces: tuple[int, int], truth: PairOracle,
         assert -truth.distance - tolerance <= depth <= truth.depth + tolerance
 
 
-def _inside(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
-    """Even-odd rule by horizontal ray casting."""
-    x, y = points[:, 0:1], points[:, 1:2]
-    x0, y0 = ring[None, :, 0], ring[None, :, 1]
-    x1, y1 = np.roll(ring, -1, axis=0)[None, :, 0], np.roll(ring, -1, axis=0)[None, :, 1]
-    straddles = (y0 > y) != (y1 > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        crossing_x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
-    return np.sum(straddles & (x < crossing_x), axis=1) % 2 == 1
-
-
 def _point_segment_distance(points, start, end):
     direction = end - start
     t = np.clip(np.sum((points[:, None] - start[None]) * direction[None], axis=-1)
@@ -262,7 +251,8 @@ def polygons_overlap(first: np.ndarray, second: np.ndarray) -> tuple[bool, float
     gap = min(np.min(_point_segment_distance(first, second, np.roll(second, -1, axis=0))),
               np.min(_point_segment_distance(second, first, np.roll(first, -1, axis=0))))
     crossing = _boundaries_cross(first, second)
-    contained = _inside(first[:1], second)[0] or _inside(second[:1], first)[0]
+    inside = oracle.inside_polygon
+    contained = inside(first[:1], second)[0] or inside(second[:1], first)[0]
     return bool(crossing or contained), 0.0 if crossing else float(gap)
 
 

@@ -10,6 +10,7 @@ edge have a convex union) by SciPy hull areas.
 from __future__ import annotations
 
 import numpy as np
+import oracle
 import pytest
 from scipy.spatial import ConvexHull
 
@@ -57,17 +58,6 @@ def clip_convex(subject: np.ndarray, clip: np.ndarray) -> np.ndarray:
                 kept.append(current + t * (following - current))
         output = np.array(kept).reshape(-1, 2)
     return output
-
-
-def inside_polygon(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
-    """Even-odd rule by horizontal ray casting, for any simple polygon."""
-    x, y = points[:, 0:1], points[:, 1:2]
-    x0, y0 = ring[None, :, 0], ring[None, :, 1]
-    x1, y1 = np.roll(ring, -1, axis=0)[None, :, 0], np.roll(ring, -1, axis=0)[None, :, 1]
-    straddles = (y0 > y) != (y1 > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        crossing_x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
-    return np.sum(straddles & (x < crossing_x), axis=1) % 2 == 1
 
 
 def boundary_distance(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
@@ -130,8 +120,8 @@ def _check_coverage(corners, pieces, rng, samples: int, scale: float) -> None:
     for piece in pieces:
         near_any |= boundary_distance(points, piece) <= margin
     points = points[~near_any]
-    in_polygon = inside_polygon(points, corners)
-    hits = np.sum([inside_polygon(points, piece) for piece in pieces], axis=0)
+    in_polygon = oracle.inside_polygon(points, corners)
+    hits = np.sum([oracle.inside_polygon(points, piece) for piece in pieces], axis=0)
     np.testing.assert_array_equal(hits, in_polygon.astype(int))
     assert np.count_nonzero(in_polygon) > 0
 
