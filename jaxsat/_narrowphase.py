@@ -162,9 +162,25 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     -(e_b . m_a + e_a . m_b) / |n|, signed so the axis points out of a. Other pairs are
     skipped: their axes never give the minimum. (The moment form cancels digits in float32;
     `penetration` measures the winner again by projection, so that only affects near-ties.)
-    Returns (depths (K_a K_b,), what `_gauss_map_axis` needs to build a winner's axis)."""
-    points_a, dir_a, na1, na2 = _hull_edge_frames(a)
-    points_b, dir_b, nb1, nb2 = _hull_edge_frames(b, rotation, translation)
+    Returns (depths (K_a, K_b), depths of one row of a's edges (K_b,), what
+    `_gauss_map_axis` needs to build a winner's axis)."""
+    frames_a = _hull_edge_frames(a)
+    frames_b = _hull_edge_frames(b, rotation, translation)
+    moments_a = jnp.cross(frames_a[1], frames_a[0])
+    moments_b = jnp.cross(frames_b[1], frames_b[0])
+
+    def row_depths(row):
+        one_row = jax.tree.map(lambda field: field[row][None], (frames_a, moments_a))
+        return _gauss_map_depths(*one_row, frames_b, moments_b)[0]
+
+    depths = _gauss_map_depths(frames_a, moments_a, frames_b, moments_b)
+    return depths, row_depths, (frames_a[1], frames_b[1], frames_a[3])
+
+
+def _gauss_map_depths(frames_a, moments_a, frames_b, moments_b):
+    """Separation (K_a, K_b) of every pair of hull edges, inf where no Minkowski face."""
+    _, dir_a, na1, na2 = frames_a
+    _, dir_b, nb1, nb2 = frames_b
     cba, dba = -_project(dir_a, nb1), -_project(dir_a, nb2)
     adc, bdc = _project(na1, dir_b), _project(na2, dir_b)
     minkowski_face = (cba * dba < 0) & (adc * bdc < 0) & (cba * bdc > 0)
@@ -179,11 +195,8 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     # The Gauss-map arcs fix the orientation: the axis e_a x e_b points out of a iff BDC > 0.
     orientation = jnp.where(bdc > 0, 1.0, -1.0).astype(sine_squared.dtype)
     inverse_sine = jax.lax.rsqrt(jnp.where(valid, sine_squared, 1.0))
-    moment_a, moment_b = jnp.cross(dir_a, points_a), jnp.cross(dir_b, points_b)
-    numerator = -_project(moment_a, dir_b) - _project(dir_a, moment_b)
-    separations = numerator * orientation * inverse_sine
-    depths = jnp.where(valid, separations, jnp.inf).reshape(-1)
-    return depths, (dir_a, dir_b, na2)
+    numerator = -_project(moments_a, dir_b) - _project(dir_a, moments_b)
+    return jnp.where(valid, numerator * orientation * inverse_sine, jnp.inf)
 
 
 def _gauss_map_axis(index, dir_a, dir_b, normals_a):
@@ -218,36 +231,35 @@ def _candidate_groups(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, prun
     a_vertices_in_b = _rotate(rotation.T, a.vertices - translation)
     groups = [_face_axes(a, b_vertices_in_a, b, a_vertices_in_b, rotation)]
     if a.dim == 3 and prune and _use_gauss_map(a, b):
-        edge_depths, edge_data = _edge_axes_by_gauss_map(a, b, rotation, translation)
-        groups.append((edge_depths, lambda index: _gauss_map_axis(index, *edge_data)))
+        edge_depths, row_depths, edge_data = _edge_axes_by_gauss_map(a, b, rotation, translation)
+        groups.append((edge_depths, lambda index: _gauss_map_axis(index, *edge_data), row_depths))
     elif a.dim == 3:
         groups.append(_edge_axes_by_projection(a, b, b_vertices_in_a, rotation))
     return groups, b_vertices_in_a
 
 
-def _winner(depths: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """(min, argmin) of one group's depths, in the forms XLA runs fastest on CPU.
+def _winner(depths: jax.Array, row_depths=None) -> tuple[jax.Array, jax.Array]:
+    """(min, flat argmin) of one group's depths, in the forms XLA runs fastest on CPU.
 
-    A short group takes jnp.argmin and reads the minimum at that index: a separate min
-    reduction measured slower. A long group (the Gauss-map edge pairs) finds the index with
-    two plain reductions instead, since XLA's CPU argmin (a variadic reduce) took 60% of a
-    20-vertex hull query; the barrier makes both read one materialised copy, because if XLA
-    recomputed `depths` inside each fused reduction their roundings could differ and no entry
-    would equal the minimum."""
-    if depths.shape[0] < 256:
+    A flat group takes jnp.argmin and reads the minimum at that index (a separate min
+    reduction measured slower). A 2-D group (the Gauss-map edge pairs, K_a x K_b) is reduced
+    to its row minima, a reduction XLA fuses with computing the depths, so that the K_a K_b
+    depths never reach memory (a flat argmin over them took 60% of a 20-vertex hull query);
+    the winning row is then computed again by `row_depths` to find its column."""
+    if depths.ndim == 1:
         index = jnp.argmin(depths)
         return depths[index], index
-    smallest = jnp.min(depths)
-    copy = jax.lax.optimization_barrier(depths)
-    positions = jnp.arange(depths.shape[0])
-    return smallest, jnp.min(jnp.where(copy == jnp.min(copy), positions, depths.shape[0] - 1))
+    row_minima = jnp.min(depths, axis=1)
+    row = jnp.argmin(row_minima)
+    column = jnp.argmin(row_depths(row))
+    return row_minima[row], row * depths.shape[1] + column
 
 
 def _best_axis(groups) -> tuple[jax.Array, jax.Array]:
     """The smallest depth over all groups and its unit axis (in a's frame)."""
     best_depth, best_axis = None, None
-    for depths, axis_of in groups:
-        depth, index = _winner(depths)
+    for depths, axis_of, *row_depths in groups:
+        depth, index = _winner(depths, *row_depths)
         axis = axis_of(index)
         if best_depth is None:
             best_depth, best_axis = depth, axis
@@ -316,7 +328,7 @@ def _world_aabb(shape: Polytope, pose: Pose) -> tuple[jax.Array, jax.Array]:
 
 def _min_depth(a, pose_a, b, pose_b) -> jax.Array:
     groups, _ = _candidate_groups(a, pose_a, b, pose_b)
-    return functools.reduce(jnp.minimum, [_winner(depths)[0] for depths, _ in groups])
+    return functools.reduce(jnp.minimum, [jnp.min(group[0]) for group in groups])
 
 
 def intersects(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> jax.Array:
