@@ -163,19 +163,13 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     -(e_b . m_a + e_a . m_b) / |n|, signed so the axis points out of a. Other pairs are
     skipped: their axes never give the minimum. (The moment form cancels digits in float32;
     `penetration` measures the winner again by projection, so that only affects near-ties.)
-    Returns (depths (K_a, K_b), depths of one row of a's edges (K_b,), what
-    `_gauss_map_axis` needs to build a winner's axis)."""
+    Returns (depths (K_a, K_b), what `_gauss_map_axis` needs to build a winner's axis)."""
     frames_a = _hull_edge_frames(a)
     frames_b = _hull_edge_frames(b, rotation, translation)
     moments_a = jnp.cross(frames_a[1], frames_a[0])
     moments_b = jnp.cross(frames_b[1], frames_b[0])
-
-    def row_depths(row):
-        one_row = jax.tree.map(lambda field: field[row][None], (frames_a, moments_a))
-        return _gauss_map_depths(*one_row, frames_b, moments_b)[0]
-
     depths = _gauss_map_depths(frames_a, moments_a, frames_b, moments_b)
-    return depths, row_depths, (frames_a[1], frames_b[1], frames_a[3])
+    return depths, (frames_a[1], frames_b[1], frames_a[3])
 
 
 def _gauss_map_depths(frames_a, moments_a, frames_b, moments_b):
@@ -233,33 +227,31 @@ def _candidate_groups(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, prun
     with_edges = a.dim == 3 and not gauss_map
     groups = [_projection_group(a, b, b_vertices_in_a, rotation, with_edges)]
     if gauss_map:
-        edge_depths, row_depths, edge_data = _edge_axes_by_gauss_map(a, b, rotation, translation)
-        groups.append((edge_depths, lambda index: _gauss_map_axis(index, *edge_data), row_depths))
+        edge_depths, edge_data = _edge_axes_by_gauss_map(a, b, rotation, translation)
+        groups.append((edge_depths, lambda index: _gauss_map_axis(index, *edge_data)))
     return groups, b_vertices_in_a
 
 
-def _winner(depths: jax.Array, row_depths=None) -> tuple[jax.Array, jax.Array]:
+def _winner(depths: jax.Array) -> tuple[jax.Array, jax.Array]:
     """(min, flat argmin) of one group's depths, in the forms XLA runs fastest on CPU.
 
     A flat group takes jnp.argmin and reads the minimum at that index (a separate min
     reduction measured slower). A 2-D group (the Gauss-map edge pairs, K_a x K_b) is reduced
-    to its row minima, a reduction XLA fuses with computing the depths, so that the K_a K_b
-    depths never reach memory (a flat argmin over them took 60% of a 20-vertex hull query);
-    the winning row is then computed again by `row_depths` to find its column."""
+    to its row minima, then the argmin of those and of the winning row: a flat argmin over
+    the K_a K_b depths (XLA's variadic reduce) took 60% of a 20-vertex hull query."""
     if depths.ndim == 1:
         index = jnp.argmin(depths)
         return depths[index], index
     row_minima = jnp.min(depths, axis=1)
     row = jnp.argmin(row_minima)
-    column = jnp.argmin(row_depths(row))
-    return row_minima[row], row * depths.shape[1] + column
+    return row_minima[row], row * depths.shape[1] + jnp.argmin(depths[row])
 
 
 def _best_axis(groups) -> tuple[jax.Array, jax.Array]:
     """The smallest depth over all groups and its unit axis (in a's frame)."""
     best_depth, best_axis = None, None
-    for depths, axis_of, *row_depths in groups:
-        depth, index = _winner(depths, *row_depths)
+    for depths, axis_of in groups:
+        depth, index = _winner(depths)
         axis = axis_of(index)
         if best_depth is None:
             best_depth, best_axis = depth, axis
