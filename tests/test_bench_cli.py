@@ -96,3 +96,44 @@ def test_jaxsat_rows_match_the_oracle_with_gradients(peers, tmp_path):
     assert errors["normal_error_max_deg"] < 1e-3
     assert errors["grad_pairs"] == 4 and errors["grad_error_max"] < 1e-4
     assert row["setup_s"] > 0
+
+
+def test_chunked_jaxsat_row_matches_the_oracle(peers, tmp_path):
+    # 64 pairs in chunks of 8192 are one plain vmap; 3d-hulls chunks by 256, so use 300 pairs.
+    prefix = tmp_path / "chunked"
+    argv = [*TINY, "--methods", "jaxsat-chunked", "--output", str(prefix)]
+    argv[argv.index("--cases") + 1] = "3d-hulls"
+    argv[argv.index("--sizes") + 1] = "300"
+    argv[argv.index("--error-pairs") + 1] = "300"
+    assert peers.main(argv) == 0
+    row = json.loads(prefix.with_name("chunked.json").read_text())["results"][0]
+    errors = row["errors"]
+    assert errors["overlapping"] > 10 and errors["wrong_overlap"] == 0
+    assert errors["depth_error_max"] < 1e-5 and errors["normal_error_max_deg"] < 1e-3
+    assert row["sizes"]["300"]["pairs_per_second"] > 0
+
+
+@pytest.fixture
+def roofline(monkeypatch):
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    import roofline as module
+
+    return module
+
+
+def test_roofline_reports_costs_ceilings_and_rates(roofline, capsys):
+    argv = ["--quick", "--cases", "2d-small", "3d-boxes", "--sizes", "64", "128",
+            "--repeats", "1", "--pool", "16"]
+    assert roofline.main(argv) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ")]
+    assert lines[0].startswith("| case | compile s | flops/pair | bytes/pair | C |")
+    rows = {line.split(" | ")[0][2:]: line.split(" | ") for line in lines[1:]}
+    assert set(rows) == {"2d-small", "3d-boxes"}
+    for cells in rows.values():
+        compile_s, flops, bytes_ = (float(cell) for cell in cells[1:4])
+        assert compile_s > 0 and flops > 100 and bytes_ > 100
+        assert all("/" in cell for cell in cells[5:7])  # vmap / chunked pairs/s per size
+        assert float(cells[7]) >= 1.0  # flatness: fastest over slowest
+    # A 3D box pair costs more operations than a pair of 3-4-gons.
+    assert float(rows["3d-boxes"][2]) > float(rows["2d-small"][2])
+
