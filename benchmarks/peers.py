@@ -33,14 +33,10 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import importlib.metadata
 import json
 import math
-import os
 import pathlib
-import platform
 import statistics
-import subprocess
 import sys
 import time
 
@@ -48,6 +44,7 @@ import numpy as np
 
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+from machine import available_memory_bytes, load_average, machine_info  # noqa: E402
 from peers_data import CASES, Reference, gradient_pairs, make_case, reference  # noqa: E402
 from peers_methods import CONTACTS, DISTANCE, METHODS, Method  # noqa: E402
 
@@ -61,70 +58,6 @@ DISTRIBUTIONS = ("jax", "jaxlib", "jaxsat", "numpy", "scipy", "mujoco", "mujoco-
 DEPTH_FLOOR = 1e-17
 ANGLE_FLOOR = 1e-15
 """Zero errors are drawn at these values on the log axes of the plot."""
-
-
-# ----------------------------------------------------------------------------- machine
-
-
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as cpuinfo:
-            for line in cpuinfo:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
-def load_average() -> list[float] | None:
-    return [round(x, 2) for x in os.getloadavg()] if hasattr(os, "getloadavg") else None
-
-
-def available_memory_bytes() -> int | None:
-    try:
-        with open("/proc/meminfo") as meminfo:
-            for line in meminfo:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
-
-
-def versions() -> dict[str, str | None]:
-    found = {}
-    for name in DISTRIBUTIONS:
-        try:
-            found[name] = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            found[name] = None
-    return found
-
-
-def git_commit() -> str | None:
-    def git(*args):
-        return subprocess.run(["git", "-C", str(HERE), *args], capture_output=True, text=True,
-                              timeout=10, check=True).stdout.strip()
-    try:
-        commit = git("rev-parse", "--short", "HEAD")
-        return commit + ("+dirty" if git("status", "--porcelain") else "")
-    except (OSError, subprocess.SubprocessError):
-        return None
-
-
-def machine_info() -> dict:
-    return {
-        "date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "cpu_model": cpu_model(),
-        "cpu_count": os.cpu_count(),
-        "load_average_start": load_average(),
-        "memory_available_bytes": available_memory_bytes(),
-        "versions": versions(),
-        "git_commit": git_commit(),
-    }
 
 
 # ----------------------------------------------------------------------------- progress
@@ -511,7 +444,7 @@ def main(argv=None) -> int:
     if args.list:
         print(list_methods())
         return 0
-    info = machine_info()
+    info = machine_info(DISTRIBUTIONS)
     tasks = [(case, METHODS[name]) for case in args.cases for name in args.methods
              if case in METHODS[name].cases]
     progress = Progress(len(tasks) + len(args.cases), enabled=not args.no_progress)

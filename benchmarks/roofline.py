@@ -39,7 +39,7 @@ import jaxsat
 
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from peers import available_memory_bytes, load_average, machine_info  # noqa: E402
+from machine import available_memory_bytes, load_average, machine_info  # noqa: E402
 from peers_data import CASES, make_case  # noqa: E402
 from peers_methods import CHUNK_SIZES, _jaxsat_inputs  # noqa: E402
 

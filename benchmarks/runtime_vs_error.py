@@ -52,7 +52,6 @@ import json
 import os
 import pathlib
 import statistics
-import subprocess
 import sys
 import time
 
@@ -70,7 +69,8 @@ HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "tests"))
 import oracle  # noqa: E402  (tests/oracle.py: NumPy/SciPy only, no jaxsat)
-from throughput import machine_info, random_hull_points  # noqa: E402
+from machine import load_average, machine_info  # noqa: E402
+from throughput import random_hull_points  # noqa: E402
 
 CASES = {
     "2d-octagons": "random convex 8-gons, polygon(vertices)",
@@ -377,19 +377,9 @@ def run_case(case: str, args, rng: np.random.Generator, echo) -> tuple[dict, lis
 
 
 def source_info() -> dict:
-    """Where jaxsat was imported from, and its git commit (and whether jaxsat/ differs from
-    it), so that a result can be tied to the code it measured."""
-    package = pathlib.Path(jaxsat.__file__).resolve().parent
-    info: dict = {"jaxsat_path": str(package)}
-    try:
-        git = lambda *a: subprocess.run(["git", "-C", str(package), *a], capture_output=True,  # noqa: E731
-                                        text=True, timeout=10, check=True).stdout.strip()
-        info["git_commit"] = git("rev-parse", "HEAD")
-        info["git_jaxsat_modified"] = bool(git("status", "--porcelain", "--", "."))
-    except (OSError, subprocess.SubprocessError):
-        info["git_commit"] = None
-    return info
-
+    """Where jaxsat was imported from, so that a result can be tied to the code it measured
+    (the commit is `machine_info`'s)."""
+    return {"jaxsat_path": str(pathlib.Path(jaxsat.__file__).resolve().parent)}
 
 
 HEADER = ("| case | variant | tau / size | pairs | compile value / grad (s) | value pairs/s | "
@@ -519,13 +509,12 @@ def main(argv=None) -> int:
     def echo(text: str) -> None:
         print(text, flush=True)
 
-    title = (f"jaxsat {info['jaxsat']} signed_distance: run time against error\n"
-             f"{info['cpu_model']}, {info['cpu_count']} CPUs, jax {info['jax']} "
+    title = (f"jaxsat {info['versions']['jaxsat']} signed_distance: run time against error\n"
+             f"{info['cpu_model']}, {info['cpu_count']} CPUs, jax {info['versions']['jax']} "
              f"({info['backend']}), {info['date_utc'][:10]}")
     echo(title.replace("\n", "; "))
-    modified = " + uncommitted changes" if info.get("git_jaxsat_modified") else ""
-    echo(f"jaxsat from {info['jaxsat_path']}, git commit {info['git_commit']}{modified}")
-    echo(f"load average {info['load_average_1_5_15']}; tau = fraction x size, size = {SIZE}; "
+    echo(f"jaxsat from {info['jaxsat_path']}, git commit {info['git_commit']}")
+    echo(f"load average {info['load_average_start']}; tau = fraction x size, size = {SIZE}; "
          "pairs/s: best of the timed calls after a warm-up, compile excluded")
     echo("")
     echo(HEADER)
@@ -540,8 +529,8 @@ def main(argv=None) -> int:
     for row in rows:
         echo(markdown_row(row))
     total = time.perf_counter() - started
-    info["load_average_1_5_15_end"] = list(os.getloadavg())
-    echo(f"\ntotal {total:.0f}s, load average at the end {info['load_average_1_5_15_end']}")
+    info["load_average_end"] = load_average()
+    echo(f"\ntotal {total:.0f}s, load average at the end {info['load_average_end']}")
 
     if args.png:
         plot(rows, args.cases, pathlib.Path(args.png), title)

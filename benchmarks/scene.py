@@ -21,14 +21,11 @@ Usage (from the repository root):
 from __future__ import annotations
 
 import argparse
-import datetime
 import functools
 import json
-import os
 import pathlib
-import platform
 import statistics
-import subprocess
+import sys
 import time
 
 import jax
@@ -36,6 +33,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsat
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from machine import load_average, machine_info  # noqa: E402
 
 RESULTS_DIR = pathlib.Path(__file__).resolve().parent / "results"
 POOL_SIZE = 64
@@ -174,16 +174,6 @@ def markdown(rows) -> str:
     return "\n".join(lines)
 
 
-def machine() -> dict:
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo")
-                if line.startswith("model name")), platform.processor())
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True, check=False).stdout.strip()
-    return {"cpu": cpu, "cores": os.cpu_count(), "jax": jax.__version__,
-            "device": str(jax.devices()[0]), "commit": commit,
-            "date": datetime.date.today().isoformat(), "load_average": os.getloadavg()}
-
-
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[1_000, 10_000, 100_000])
@@ -200,14 +190,15 @@ def parse_args(argv=None):
 
 def main(argv=None) -> None:
     args = parse_args(argv)
-    info, rows = machine(), []
-    print(f"{info['cpu']}, {info['cores']} cores, {info['device']}, jax {info['jax']}")
+    info, rows = machine_info(), []
+    print(f"{info['cpu_model']}, {info['cpu_count']} cores, {info['devices'][0]}, "
+          f"jax {info['versions']['jax']}, git {info['git_commit']}")
     for kind in args.kinds:
         side = calibrate_side(shape_pool(kind, np.random.default_rng(0)), rng_seed=1)
         for count in args.sizes:
             rows.append(run_case(kind, count, side, args))
             print(markdown(rows[-1:]).splitlines()[-1], flush=True)
-    info["load_average_end"] = os.getloadavg()
+    info["load_average_end"] = load_average()
     table = markdown(rows)
     print(table)
     if not args.no_save:

@@ -42,14 +42,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
 import functools
 import json
 import os
 import pathlib
-import platform
 import statistics
-import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -59,6 +56,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsat
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from machine import load_average, machine_info  # noqa: E402
 
 RESULTS_DIR = pathlib.Path(__file__).resolve().parent / "results"
 RESULT_NAME = "skipping-cpu-2core"
@@ -572,21 +572,6 @@ def markdown(comparisons: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def machine_info() -> dict:
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo")
-                if line.startswith("model name")), platform.processor())
-    git = lambda *cmd: subprocess.run(["git", *cmd], capture_output=True, text=True,  # noqa: E731
-                                      check=False, cwd=RESULTS_DIR.parents[1]).stdout.strip()
-    return {"cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(),
-            "python": platform.python_version(), "jax": jax.__version__,
-            "jaxsat": jaxsat.__version__, "device": str(jax.devices()[0]),
-            "commit": git("rev-parse", "--short", "HEAD"),
-            "uncommitted_changes": bool(git("status", "--porcelain", "--", "jaxsat")),
-            "date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(
-                timespec="seconds"),
-            "load_average_start": os.getloadavg()}
-
-
 def plan(args) -> list[tuple[str, Callable[[], dict]]]:
     """(label, run) of every comparison, in order."""
     n, n_hulls, r = args.pairs, args.hull_pairs, args.repeats
@@ -640,9 +625,9 @@ def parse_args(argv=None) -> argparse.Namespace:
 def main(argv=None) -> int:
     args = parse_args(argv)
     info = machine_info()
-    print(f"{info['cpu']}, {info['cores']} cores, {info['device']}, jax {info['jax']}, "
-          f"jaxsat {info['commit']}{' + changes' if info['uncommitted_changes'] else ''}, "
-          f"load average {info['load_average_start']}", flush=True)
+    print(f"{info['cpu_model']}, {info['cpu_count']} cores, {info['devices'][0]}, jax "
+          f"{info['versions']['jax']}, git {info['git_commit']}, load average "
+          f"{info['load_average_start']}", flush=True)
     start, comparisons = time.perf_counter(), []
     for label, run in plan(args):
         if args.only and not any(text in label for text in args.only):
@@ -652,7 +637,7 @@ def main(argv=None) -> int:
         comparisons.append(run())
         print(f"\n{label} ({time.perf_counter() - began:.0f} s):", flush=True)
         print("\n".join(markdown(comparisons[-1:]).splitlines()[2:]), flush=True)
-    info["load_average_end"] = os.getloadavg()
+    info["load_average_end"] = load_average()
     info["seconds"] = time.perf_counter() - start
     table = markdown(comparisons)
     print(f"\n{table}\n\nload average at the end {info['load_average_end']}, "

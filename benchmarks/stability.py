@@ -34,11 +34,8 @@ Usage (from the repository root):
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
-import os
 import pathlib
-import platform
 import sys
 import time
 
@@ -47,6 +44,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsat
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from machine import machine_info  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
@@ -407,23 +407,6 @@ def format_row(row) -> str:
             f"| {_fmt(ratio)} |")
 
 
-def machine_info() -> dict:
-    model = platform.processor() or "unknown"
-    try:
-        with open("/proc/cpuinfo") as cpuinfo:
-            model = next(line.split(":", 1)[1].strip() for line in cpuinfo
-                         if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {
-        "date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "platform": platform.platform(), "python": platform.python_version(),
-        "cpu_model": model, "cpu_count": os.cpu_count(),
-        "load_average_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-        "jax": jax.__version__, "jaxsat": jaxsat.__version__, "backend": jax.default_backend(),
-    }
-
-
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--configs", type=int, default=110_000,
@@ -445,8 +428,9 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     echo = lambda text: print(text, flush=True)  # noqa: E731
     info = machine_info()
-    echo(f"# jaxsat {info['jaxsat']}, JAX {info['jax']} ({info['backend']}), "
-         f"{info['cpu_model']} x {info['cpu_count']}")
+    echo(f"# jaxsat {info['versions']['jaxsat']}, JAX {info['versions']['jax']} "
+         f"({info['backend']}), {info['cpu_model']} x {info['cpu_count']}, git "
+         f"{info['git_commit']}")
     echo(f"# tau = {TAU} x scale; errors divided by the length scale; reference: jaxsat "
          f"float64 exact, itself checked against the SciPy oracle on a subsample")
     echo(HEADER)

@@ -23,9 +23,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
 import pathlib
-import platform
 import statistics
 import sys
 import time
@@ -35,6 +33,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsat
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from machine import available_memory_bytes, machine_info  # noqa: E402
 
 CASES = {
     "2d-polygons": "random convex polygons, 3-8 vertices, polygon(..., max_vertices=8)",
@@ -112,47 +113,6 @@ def abstract_batch(case: str, pool: jaxsat.Polytope, pairs: int):
     pose = jaxsat.Pose(jax.ShapeDtypeStruct((pairs, dim), jnp.float32),
                        jax.ShapeDtypeStruct((pairs, dim, dim), jnp.float32))
     return shape, pose, shape, pose
-
-
-# ----------------------------------------------------------------------------- machine
-
-
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as cpuinfo:
-            for line in cpuinfo:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
-def available_memory_bytes() -> int | None:
-    try:
-        with open("/proc/meminfo") as meminfo:
-            for line in meminfo:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
-
-
-def machine_info() -> dict:
-    return {
-        "date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "cpu_model": cpu_model(),
-        "cpu_count": os.cpu_count(),
-        "load_average_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-        "memory_available_bytes": available_memory_bytes(),
-        "jax": jax.__version__,
-        "jaxsat": jaxsat.__version__,
-        "backend": jax.default_backend(),
-        "devices": [str(device) for device in jax.devices()],
-    }
 
 
 # ----------------------------------------------------------------------------- timing
@@ -277,10 +237,11 @@ def main(argv=None) -> int:
     def echo(text: str) -> None:
         print(text, flush=True)
 
-    echo(f"jaxsat {info['jaxsat']} throughput, float32, "
+    echo(f"jaxsat {info['versions']['jaxsat']} throughput, float32, "
          f"jax.jit(jax.vmap(jaxsat.{args.query}))")
-    echo(f"{info['cpu_model']}, {info['cpu_count']} CPUs, {info['platform']}, jax {info['jax']} "
-         f"({info['backend']}), load average {info['load_average_1_5_15']}, {info['date_utc']}")
+    echo(f"{info['cpu_model']}, {info['cpu_count']} CPUs, {info['platform']}, jax "
+         f"{info['versions']['jax']} ({info['backend']}), load average "
+         f"{info['load_average_start']}, {info['date_utc']}, git {info['git_commit']}")
     echo("compile: ahead-of-time compile of the batch; best call: best of the timed calls "
          "after a warm-up")
     echo("")
