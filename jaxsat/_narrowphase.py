@@ -7,8 +7,11 @@ the minimum over all directions is attained at a facet normal of the Minkowski d
 and every such normal is among the candidate axes), and minus the largest gap otherwise.
 
 Candidate axes: in 2D the edge normals of both shapes; in 3D the face normals of both shapes
-and the cross products of edge directions. Everything is computed in a's local frame, so that
-a's own projections on its face normals are precomputed constants.
+and the cross products of edge directions. Everything is computed in a's local frame. Face
+normals (and, for boxes, the edge cross products) are measured by projecting both shapes'
+vertices; hull edge pairs go through the Gauss map, which tests only the pairs that can bound
+the Minkowski difference (see `_projection_group` and `_edge_axes_by_gauss_map`, and
+benchmarks/README.md, "Performance to the limit", for why they are written as they are).
 """
 
 from __future__ import annotations
