@@ -167,18 +167,8 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     skipped: their axes never give the minimum. (The moment form cancels digits in float32;
     `penetration` measures the winner again by projection, so that only affects near-ties.)
     Returns (depths (K_a, K_b), what `_gauss_map_axis` needs to build a winner's axis)."""
-    frames_a = _hull_edge_frames(a)
-    frames_b = _hull_edge_frames(b, rotation, translation)
-    moments_a = jnp.cross(frames_a[1], frames_a[0])
-    moments_b = jnp.cross(frames_b[1], frames_b[0])
-    depths = _gauss_map_depths(frames_a, moments_a, frames_b, moments_b)
-    return depths, (frames_a[1], frames_b[1], frames_a[3])
-
-
-def _gauss_map_depths(frames_a, moments_a, frames_b, moments_b):
-    """Separation (K_a, K_b) of every pair of hull edges, inf where no Minkowski face."""
-    _, dir_a, na1, na2 = frames_a
-    _, dir_b, nb1, nb2 = frames_b
+    points_a, dir_a, na1, na2 = _hull_edge_frames(a)
+    points_b, dir_b, nb1, nb2 = _hull_edge_frames(b, rotation, translation)
     cba, dba = -_project(dir_a, nb1), -_project(dir_a, nb2)
     adc, bdc = _project(na1, dir_b), _project(na2, dir_b)
     minkowski_face = (cba * dba < 0) & (adc * bdc < 0) & (cba * bdc > 0)
@@ -193,8 +183,10 @@ def _gauss_map_depths(frames_a, moments_a, frames_b, moments_b):
     # The Gauss-map arcs fix the orientation: the axis e_a x e_b points out of a iff BDC > 0.
     orientation = jnp.where(bdc > 0, 1.0, -1.0).astype(sine_squared.dtype)
     inverse_sine = jax.lax.rsqrt(jnp.where(valid, sine_squared, 1.0))
-    numerator = -_project(moments_a, dir_b) - _project(dir_a, moments_b)
-    return jnp.where(valid, numerator * orientation * inverse_sine, jnp.inf)
+    moment_a, moment_b = jnp.cross(dir_a, points_a), jnp.cross(dir_b, points_b)
+    numerator = -_project(moment_a, dir_b) - _project(dir_a, moment_b)
+    depths = jnp.where(valid, numerator * orientation * inverse_sine, jnp.inf)
+    return depths, (dir_a, dir_b, na2)
 
 
 def _gauss_map_axis(index, dir_a, dir_b, normals_a):
