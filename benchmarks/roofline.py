@@ -40,6 +40,7 @@ import jaxsat
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from machine import available_memory_bytes, load_average, machine_info  # noqa: E402
+from peers import time_calls  # noqa: E402
 from peers_data import CASES, make_case  # noqa: E402
 from peers_methods import CHUNK_SIZES, _jaxsat_inputs  # noqa: E402
 
@@ -48,15 +49,8 @@ FMA_CHAIN = 64
 
 
 def best_seconds(run, repeats: int, budget_s: float) -> float:
-    """Best wall time of `repeats` calls after a warm-up (fewer once `budget_s` is spent)."""
-    jax.block_until_ready(run())
-    times, spent = [], 0.0
-    while len(times) < repeats and (spent < budget_s or len(times) < 2):
-        start = time.perf_counter()
-        jax.block_until_ready(run())
-        times.append(time.perf_counter() - start)
-        spent += times[-1]
-    return min(times)
+    """Best wall time of up to `repeats` calls after a warm-up (as in the peers benchmark)."""
+    return min(time_calls(lambda: jax.block_until_ready(run()), repeats, budget_s)[0])
 
 
 def fma_ceiling(repeats: int) -> float:
