@@ -23,7 +23,8 @@ import numpy as np
 
 from jaxsat import _shapes as shapes
 from jaxsat._decompose import decompose
-from jaxsat._narrowphase import _check_one_pair, intersects, penetration
+from jaxsat._narrowphase import intersects, penetration
+from jaxsat._pair import check_one_pair, compiled_query
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
@@ -260,7 +261,7 @@ def _check_query(a: Compound, pose_a: Pose, b: Compound, pose_b: Pose) -> None:
     for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
         if not isinstance(pose, Pose):
             raise ValueError(f"{name} must be a jaxsat.Pose, got {type(pose).__name__}")
-    _check_one_pair(a, pose_a, b, pose_b)
+    check_one_pair(a, pose_a, b, pose_b)
 
 
 def _prepare(a, pose_a, b, pose_b) -> tuple[Compound, Compound, jax.Array]:
@@ -276,6 +277,11 @@ def _over_piece_pairs(query, a: Compound, pose_a: Pose, b: Compound, pose_b: Pos
     return jax.vmap(per_b, in_axes=(0, None, None, None))(a.pieces, pose_a, b.pieces, pose_b)
 
 
+def _check_compound_query(a, pose_a, b, pose_b) -> None:
+    _prepare(a, pose_a, b, pose_b)
+
+
+@compiled_query(_check_compound_query)
 def compound_intersects(a: Compound | Polytope, pose_a: Pose, b: Compound | Polytope,
                         pose_b: Pose) -> jax.Array:
     """True where some real piece of a overlaps or touches some real piece of b.
@@ -289,9 +295,10 @@ def compound_intersects(a: Compound | Polytope, pose_a: Pose, b: Compound | Poly
       () bool.
     """
     a, b, real_pairs = _prepare(a, pose_a, b, pose_b)
-    return jnp.any(real_pairs & _over_piece_pairs(intersects, a, pose_a, b, pose_b))
+    return jnp.any(real_pairs & _over_piece_pairs(intersects.uncompiled, a, pose_a, b, pose_b))
 
 
+@compiled_query(_check_compound_query)
 def compound_penetration(a: Compound | Polytope, pose_a: Pose, b: Compound | Polytope,
                          pose_b: Pose) -> CompoundPenetration:
     """The deepest penetration over all pairs of real pieces, with its axis and pieces.
@@ -312,7 +319,7 @@ def compound_penetration(a: Compound | Polytope, pose_a: Pose, b: Compound | Pol
       and moving b by depth * normal separates the winning pair.
     """
     a, b, real_pairs = _prepare(a, pose_a, b, pose_b)
-    pairs = _over_piece_pairs(penetration, a, pose_a, b, pose_b)
+    pairs = _over_piece_pairs(penetration.uncompiled, a, pose_a, b, pose_b)
     # Padding pairs get -inf (never the maximum); the `where` passes them no gradient.
     depths = jnp.where(real_pairs, pairs.depth, -jnp.inf).reshape(-1)
     best = jnp.argmax(depths)

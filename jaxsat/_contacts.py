@@ -30,13 +30,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsat._narrowphase import (
-    _cast_pair,
-    _check_pair,
-    _relative_pose,
-    _rotate,
-    penetration,
+from jaxsat._kernels import (
+    chord,
+    cross,
+    cross2,
+    dot,
+    materialize,
+    orthonormal_basis,
+    rotate,
+    safe_divide,
 )
+from jaxsat._narrowphase import sat_search
+from jaxsat._pair import PairFrame, check_pair, compiled_query, pair_frame
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
@@ -129,6 +134,12 @@ class _Candidates(NamedTuple):
     """(C, D - 1) float: coordinates across n, for the reduction to the largest area."""
 
 
+def _check_contacts(a, pose_a, b, pose_b, *, margin=0.0) -> None:
+    check_pair(a, pose_a, b, pose_b)
+    _check_margin(margin)
+
+
+@compiled_query(_check_contacts)
 def contacts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
              margin=0.0) -> Contacts:
     """Contact manifold of one pair of convex shapes: up to 2 (2D) or 4 (3D) points.
@@ -209,31 +220,27 @@ class _Frame(NamedTuple):
 def _manifold(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose,
               margin=0.0) -> tuple[Contacts, _Details]:
     """`contacts` plus the faces it used (see `_Details`)."""
-    _check_pair(a, pose_a, b, pose_b)
     _check_margin(margin)
-    result = _materialize(penetration(a, pose_a, b, pose_b))
-    a, pose_a, b, pose_b = _cast_pair(a, pose_a, b, pose_b)
-    frame = _frame(a, pose_a, b, pose_b, result.normal, margin)
-    clip = _polygon_contacts if a.dim == 2 else _hull_contacts
-    candidates, edges, edge_edge, face_a, face_b = clip(a, b, frame)
-    points, depths, valid, single = _assemble(candidates, edges, edge_edge, result.depth, frame)
-    to_world = lambda vectors: _rotate(pose_a.rotation, vectors)  # noqa: E731
-    reference_is_b = (_chord(face_b.normal, -frame.normal) + _TIE_ANGLE
-                      < _chord(face_a.normal, frame.normal))
+    pair = pair_frame(a, pose_a, b, pose_b)
+    found = materialize(sat_search(pair))
+    frame = _frame(pair, found.axis, margin)
+    clip = _polygon_contacts if pair.dim == 2 else _hull_contacts
+    candidates, edges, edge_edge, face_a, face_b = clip(pair.a, pair.b, frame)
+    points, depths, valid, single = _assemble(candidates, edges, edge_edge, found.depth, frame)
+    to_world = pair.direction_to_world
+    reference_is_b = (chord(face_b.normal, -frame.normal) + _TIE_ANGLE
+                      < chord(face_a.normal, frame.normal))
     details = _Details(reference_is_b, to_world(face_a.normal), to_world(face_b.normal), single,
-                       result.depth)
-    return Contacts(points=to_world(points) + pose_a.translation, depths=depths,
-                    normal=result.normal, valid=valid), details
+                       found.depth)
+    return Contacts(points=pair.to_world(points), depths=depths,
+                    normal=to_world(found.axis), valid=valid), details
 
 
-def _frame(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, normal, margin) -> _Frame:
-    rotation, translation = _relative_pose(pose_a, pose_b)
-    b_vertices = _rotate(rotation, b.vertices) + translation
-    size = jnp.maximum(jnp.max(jnp.abs(a.vertices)), jnp.max(jnp.abs(b.vertices)))
-    tol = _LENGTH_TOLERANCE * jnp.finfo(a.dtype).eps * size
-    normal, b_vertices, size, tol = _materialize(
-        (_rotate(pose_a.rotation.T, normal), b_vertices, size, tol))
-    return _Frame(normal, b_vertices, rotation, size, tol, jnp.asarray(margin, a.dtype))
+def _frame(pair: PairFrame, axis, margin) -> _Frame:
+    size = jnp.maximum(jnp.max(jnp.abs(pair.a.vertices)), jnp.max(jnp.abs(pair.b.vertices)))
+    tol = _LENGTH_TOLERANCE * jnp.finfo(pair.dtype).eps * size
+    axis, b_vertices, size, tol = materialize((axis, pair.b_vertices, size, tol))
+    return _Frame(axis, b_vertices, pair.rotation, size, tol, jnp.asarray(margin, pair.dtype))
 
 
 def _polygon_contacts(a: Polytope, b: Polytope, frame: _Frame):
@@ -249,14 +256,14 @@ def _polygon_contacts(a: Polytope, b: Polytope, frame: _Frame):
 def _hull_contacts(a: Polytope, b: Polytope, frame: _Frame):
     """3D: the two contact faces, their clipped overlap reduced to 4 points, the support edges
     for a single point, and whether the contact is edge-edge (no face aligned with n)."""
-    b_normals = _rotate(frame.b_rotation, b.edge_face_normals)
-    (face_a, edge_a), (face_b, edge_b) = _materialize((
+    b_normals = rotate(frame.b_rotation, b.edge_face_normals)
+    (face_a, edge_a), (face_b, edge_b) = materialize((
         _hull_face(a, a.vertices, a.edge_face_normals, frame.normal, frame.tol),
         _hull_face(b, frame.b_vertices, b_normals, -frame.normal, frame.tol)))
     clipped = _clip_faces(face_a, face_b, frame.normal, frame.tol)
-    candidates = _reduce(_materialize(_keep_near(clipped, frame)), frame.tol, frame.size)
-    edge_edge = jnp.minimum(_chord(face_a.normal, frame.normal),
-                            _chord(face_b.normal, -frame.normal)) > _FACE_ANGLE
+    candidates = _reduce(materialize(_keep_near(clipped, frame)), frame.tol, frame.size)
+    edge_edge = jnp.minimum(chord(face_a.normal, frame.normal),
+                            chord(face_b.normal, -frame.normal)) > _FACE_ANGLE
     return candidates, (*edge_a, *edge_b), edge_edge, face_a, face_b
 
 
@@ -265,7 +272,7 @@ def _assemble(candidates: _Candidates, edges, edge_edge, depth, frame: _Frame):
     from the closest points of two edges (edge-edge, or no candidate), with `depth`.
     Returns them and whether the single point was used."""
     single = edge_edge | ~jnp.any(candidates.valid)
-    single_point, candidates = _materialize((_closest_midpoint(*edges), candidates))
+    single_point, candidates = materialize((_closest_midpoint(*edges), candidates))
     points = jnp.where(single, single_point[None], candidates.points)
     depths = jnp.where(single, depth, candidates.depths)
     first = jnp.arange(depths.shape[0]) == 0
@@ -283,69 +290,6 @@ def _keep_near(candidates: _Candidates, frame: _Frame) -> _Candidates:
 
 
 # --------------------------------------------------------------------------------------------
-# Helpers. Vector operations are spelled out (no dot_general), so that XLA fuses them.
-# --------------------------------------------------------------------------------------------
-
-
-def _materialize(tree):
-    """The same values, computed once and stored: XLA fuses cheap element-wise producers into
-    every consumer, so a value feeding broadcast consumers (a depth feeding (P, D) outputs, a
-    face feeding C candidates) would be recomputed per consumer element. A reduction is not
-    fused into its consumers, and a maximum with the smallest value is exact (optimization
-    barriers are dropped before fusion on CPU, so they cannot do this)."""
-    def stored(leaf):
-        if jnp.issubdtype(leaf.dtype, jnp.floating):
-            lowest = -jnp.inf
-        elif leaf.dtype == jnp.bool_:
-            return jnp.any(jnp.stack([leaf, jnp.zeros_like(leaf)]), axis=0)
-        else:
-            lowest = jnp.iinfo(leaf.dtype).min
-        return jnp.max(jnp.stack([leaf, jnp.full_like(leaf, lowest)]), axis=0)
-    return jax.tree.map(stored, tree)
-
-
-def _dot(x, y):
-    """x . y over the last axis."""
-    return sum(x[..., k] * y[..., k] for k in range(x.shape[-1]))
-
-
-def _cross(x, y):
-    """3D cross product over the last axis."""
-    return jnp.stack([x[..., 1] * y[..., 2] - x[..., 2] * y[..., 1],
-                      x[..., 2] * y[..., 0] - x[..., 0] * y[..., 2],
-                      x[..., 0] * y[..., 1] - x[..., 1] * y[..., 0]], axis=-1)
-
-
-def _cross2(x, y):
-    """2D cross product (a scalar per vector) over the last axis."""
-    return x[..., 0] * y[..., 1] - x[..., 1] * y[..., 0]
-
-
-def _chord(x, y):
-    """|x - y| for unit vectors: about the angle between them, resolved down to rounding (unlike
-    1 - x . y, which float32 rounds to 0 below 3e-4 radians)."""
-    difference = x - y
-    return jnp.sqrt(_dot(difference, difference))
-
-
-def _safe_divide(numerator, denominator, ok):
-    """numerator / denominator where ok, else 0; double `where` keeps NaN out of gradients."""
-    return jnp.where(ok, numerator / jnp.where(ok, denominator, 1.0), 0.0)
-
-
-def _basis(normal):
-    """Two unit vectors completing `normal` to a right-handed orthonormal basis (Duff et al.
-    2017, branch-free and continuous except where normal's z component changes sign)."""
-    x, y, z = normal[0], normal[1], normal[2]
-    sign = jnp.where(z >= 0, 1.0, -1.0).astype(normal.dtype)
-    scale = -1.0 / (sign + z)
-    mixed = x * y * scale
-    first = jnp.stack([1.0 + sign * x * x * scale, sign * mixed, -sign * x])
-    second = jnp.stack([mixed, sign + y * y * scale, -y])
-    return first, second
-
-
-# --------------------------------------------------------------------------------------------
 # 2D: the contact edges and their clipping.
 # --------------------------------------------------------------------------------------------
 
@@ -356,15 +300,15 @@ def _polygon_face(vertices, mask, direction, tol) -> _Face:
     `direction`). Edge i joins vertex i and i + 1; padding repeats vertex 0, so rolling the
     vertices closes the ring in either case."""
     ends = jnp.roll(vertices, -1, axis=0)
-    support = _dot(vertices, direction)
+    support = dot(vertices, direction)
     near = support >= jnp.max(support) - tol
     edges = ends - vertices
-    squared = _dot(edges, edges)
+    squared = dot(edges, edges)
     real = mask & (squared > 0)  # padding edges have zero length
     normals = jnp.stack([edges[:, 1], -edges[:, 0]], axis=-1)
     normals = normals * jax.lax.rsqrt(jnp.where(real, squared, 1.0))[:, None]
     at_support = real & (near | jnp.roll(near, -1))
-    best = jnp.argmax(jnp.where(at_support, _dot(normals, direction), -jnp.inf))
+    best = jnp.argmax(jnp.where(at_support, dot(normals, direction), -jnp.inf))
     start, end = vertices[best], ends[best]
     return _Face(start[None], end[None], jnp.ones(1, bool), normals[best], (start + end) / 2)
 
@@ -374,10 +318,10 @@ def _point_at(face: _Face, across, tangent, normal, deeper: float):
     segment. A segment seen end-on (parallel to the normal) gives its endpoint farthest along
     deeper * normal, the end that touches the other shape first."""
     start, end = face.start[0], face.end[0]
-    first, span = _dot(start, tangent), _dot(end - start, tangent)
+    first, span = dot(start, tangent), dot(end - start, tangent)
     ok = jnp.abs(span) > 0
-    fraction = jnp.clip(_safe_divide(across - first, span, ok), 0.0, 1.0)
-    end_on = jnp.where(deeper * _dot(end - start, normal) > 0, 1.0, 0.0)
+    fraction = jnp.clip(safe_divide(across - first, span, ok), 0.0, 1.0)
+    end_on = jnp.where(deeper * dot(end - start, normal) > 0, 1.0, 0.0)
     fraction = jnp.where(ok, fraction, end_on)
     return start + fraction[:, None] * (end - start)
 
@@ -387,8 +331,8 @@ def _clip_segments(face_a: _Face, face_b: _Face, normal, tol) -> _Candidates:
     edge. (Clipping the incident edge against the reference edge's side planes gives the same
     interval.)"""
     tangent = jnp.stack([-normal[1], normal[0]])
-    ends_a = _dot(jnp.stack([face_a.start[0], face_a.end[0]]), tangent)
-    ends_b = _dot(jnp.stack([face_b.start[0], face_b.end[0]]), tangent)
+    ends_a = dot(jnp.stack([face_a.start[0], face_a.end[0]]), tangent)
+    ends_b = dot(jnp.stack([face_b.start[0], face_b.end[0]]), tangent)
     low = jnp.maximum(jnp.min(ends_a), jnp.min(ends_b))
     high = jnp.minimum(jnp.max(ends_a), jnp.max(ends_b))
     overlap = high >= low - tol
@@ -397,7 +341,7 @@ def _clip_segments(face_a: _Face, face_b: _Face, normal, tol) -> _Candidates:
     on_a = _point_at(face_a, across, tangent, normal, 1.0)
     on_b = _point_at(face_b, across, tangent, normal, -1.0)
     valid = overlap & jnp.stack([jnp.array(True), across[1] - across[0] > tol])
-    return _Candidates(points=(on_a + on_b) / 2, depths=_dot(on_a - on_b, normal), valid=valid,
+    return _Candidates(points=(on_a + on_b) / 2, depths=dot(on_a - on_b, normal), valid=valid,
                        across=across[:, None])
 
 
@@ -435,9 +379,9 @@ def _hull_face(shape: Polytope, vertices, face_normals, direction, tol):
     contact. vertices (V, 3) and face_normals (K, 2, 3) are in a's frame."""
     # One gather of every edge's ends; the rest is element-wise or gathers of a few rows.
     ends = vertices[shape.edge_endpoints]  # (K, 2, 3)
-    support = _dot(ends, direction)  # (K, 2)
+    support = dot(ends, direction)  # (K, 2)
     at_support = shape.hull_edge_mask & jnp.any(support >= jnp.max(support) - tol, axis=1)
-    alignment = jnp.where(at_support[:, None], _dot(face_normals, direction), -jnp.inf)
+    alignment = jnp.where(at_support[:, None], dot(face_normals, direction), -jnp.inf)
     best = jnp.argmax(alignment.reshape(-1))  # over (edge, side) pairs
     top = jnp.argmax(jnp.where(shape.hull_edge_mask, jnp.min(support, axis=1), -jnp.inf))
     face = _face_slots(shape, ends, best, face_normals.reshape(-1, 3)[best])
@@ -454,7 +398,7 @@ def _face_slots(shape: Polytope, ends, best, normal) -> _Face:
     stored = shape.edge_face_normals
     difference = stored - stored.reshape(-1, 3)[best]
     eps = jnp.finfo(ends.dtype).eps
-    same = _dot(difference, difference) <= (16 * eps) ** 2
+    same = dot(difference, difference) <= (16 * eps) ** 2
     on_face = shape.hull_edge_mask & (same[:, 0] != same[:, 1])
     index, valid = _first_true(on_face, _num_slots(shape))
     start, end = ends[index, 0], ends[index, 1]
@@ -462,7 +406,7 @@ def _face_slots(shape: Polytope, ends, best, normal) -> _Face:
     centroid = jnp.sum(jnp.where(valid[:, None], start + end, 0.0), axis=0) / (2 * count)
     # Each edge runs counter-clockwise about the normal if its outward side faces away from
     # the centroid; swapping the others makes every corner start exactly one edge.
-    forward = (_dot(_cross(end - start, normal), start - centroid) > 0)[:, None]
+    forward = (dot(cross(end - start, normal), start - centroid) > 0)[:, None]
     start, end = jnp.where(forward, start, end), jnp.where(forward, end, start)
     start = jnp.where(valid[:, None], start, centroid)
     end = jnp.where(valid[:, None], end, centroid)
@@ -474,27 +418,27 @@ def _inside(face_start, face_edge, face: _Face, sense, points, tol):
     of each real edge (within tol). `sense` is +1 if the projection keeps the face's
     counter-clockwise order (N . n > 0), else -1."""
     # Counter-clockwise edges have the inside on their left: a positive cross product.
-    inward = sense * _cross2(face_edge[None], points[:, None] - face_start[None])
-    length = jnp.sqrt(_dot(face_edge, face_edge))
+    inward = sense * cross2(face_edge[None], points[:, None] - face_start[None])
+    length = jnp.sqrt(dot(face_edge, face_edge))
     return jnp.all(~face.valid | (inward >= -tol * length), axis=1)
 
 
 def _lift(face: _Face, points, normal):
     """Signed distance along the normal from points to a face's plane, and where it is defined
     (the face is not seen edge-on)."""
-    slope = _dot(face.normal, normal)
+    slope = dot(face.normal, normal)
     ok = jnp.abs(slope) > _MIN_SLOPE
-    return _safe_divide(_dot(face.normal, face.centroid - points), slope, ok), ok
+    return safe_divide(dot(face.normal, face.centroid - points), slope, ok), ok
 
 
 def _clip_faces(face_a: _Face, face_b: _Face, normal, tol) -> _Candidates:
     """Corners of the overlap of the two faces seen along the normal, as fixed-size candidates:
     a's corners inside b's face, b's corners inside a's face, and crossings of their edges."""
-    first, second = _basis(normal)
-    across = lambda p: jnp.stack([_dot(p, first), _dot(p, second)], axis=-1)  # noqa: E731
+    first, second = orthonormal_basis(normal)
+    across = lambda p: jnp.stack([dot(p, first), dot(p, second)], axis=-1)  # noqa: E731
     start_a, start_b = across(face_a.start), across(face_b.start)
     edge_a, edge_b = across(face_a.end) - start_a, across(face_b.end) - start_b
-    start_a, start_b, edge_a, edge_b = _materialize((start_a, start_b, edge_a, edge_b))
+    start_a, start_b, edge_a, edge_b = materialize((start_a, start_b, edge_a, edge_b))
     one = jnp.ones((), normal.dtype)
     corners_a = _corners_inside(face_a, start_a, face_b, start_b, edge_b, normal, tol, one)
     corners_b = _corners_inside(face_b, start_b, face_a, start_a, edge_a, normal, tol, -one)
@@ -508,7 +452,7 @@ def _corners_inside(face: _Face, start, other: _Face, other_start, other_edge, n
     the other face's plane. side = +1 for a's corners, -1 for b's (the depth is how far a's
     point is above b's along the normal)."""
     height, ok = _lift(other, face.start, normal)
-    sense = jnp.where(_dot(other.normal, normal) > 0, 1.0, -1.0)
+    sense = jnp.where(dot(other.normal, normal) > 0, 1.0, -1.0)
     valid = face.valid & ok & _inside(other_start, other_edge, other, sense, start, tol)
     return _Candidates(points=face.start + (height / 2)[:, None] * normal,
                        depths=-side * height, valid=valid, across=start)
@@ -518,20 +462,20 @@ def _crossings(face_a: _Face, face_b: _Face, start_a, edge_a, start_b, edge_b,
                normal) -> _Candidates:
     """Every crossing of an edge of a's face with an edge of b's face, seen along the normal,
     (M_a M_b) candidates: the point on each edge, their midpoint and their distance."""
-    denominator = _cross2(edge_a[:, None], edge_b[None, :])
+    denominator = cross2(edge_a[:, None], edge_b[None, :])
     offset = start_b[None, :] - start_a[:, None]
     eps = jnp.finfo(denominator.dtype).eps
-    scale = _dot(edge_a, edge_a)[:, None] * _dot(edge_b, edge_b)[None, :]
+    scale = dot(edge_a, edge_a)[:, None] * dot(edge_b, edge_b)[None, :]
     ok = denominator * denominator > (16 * eps) ** 2 * scale
-    along_a = _safe_divide(_cross2(offset, edge_b[None, :]), denominator, ok)
-    along_b = _safe_divide(_cross2(offset, edge_a[:, None]), denominator, ok)
+    along_a = safe_divide(cross2(offset, edge_b[None, :]), denominator, ok)
+    along_b = safe_divide(cross2(offset, edge_a[:, None]), denominator, ok)
     ok = (ok & (along_a >= 0) & (along_a <= 1) & (along_b >= 0) & (along_b <= 1)
           & face_a.valid[:, None] & face_b.valid[None, :])
     on_a = face_a.start[:, None] + along_a[..., None] * (face_a.end - face_a.start)[:, None]
     on_b = face_b.start[None, :] + along_b[..., None] * (face_b.end - face_b.start)[None, :]
     dim = on_a.shape[-1]
     return _Candidates(points=((on_a + on_b) / 2).reshape(-1, dim),
-                       depths=_dot(on_a - on_b, normal).reshape(-1), valid=ok.reshape(-1),
+                       depths=dot(on_a - on_b, normal).reshape(-1), valid=ok.reshape(-1),
                        across=(start_a[:, None] + along_a[..., None] * edge_a[:, None])
                        .reshape(-1, 2))
 
@@ -558,7 +502,7 @@ def _reduce(candidates: _Candidates, tol, size) -> _Candidates:
     first = jnp.argmax(jnp.where(tied, _KEY[0] * across[:, 0] + _KEY[1] * across[:, 1],
                                  -jnp.inf))
     offset = across - across[first]
-    distance = jnp.where(valid, _dot(offset, offset), -1.0)
+    distance = jnp.where(valid, dot(offset, offset), -1.0)
     second = jnp.argmax(distance)
     length = jnp.sqrt(jnp.maximum(distance[second], 0.0))
     third, fourth, has_third, has_fourth = _widest(across, valid, first, second, tol * length)
@@ -574,12 +518,12 @@ def _widest(across, valid, first, second, min_area):
     """The candidate making the largest triangle with `first` and `second`, the one adding the
     most area to that triangle (area as twice the area), and whether each adds over min_area."""
     p1, p2 = across[first], across[second]
-    area = jnp.where(valid, jnp.abs(_cross2(p2 - p1, across - p1)), -1.0)
+    area = jnp.where(valid, jnp.abs(cross2(p2 - p1, across - p1)), -1.0)
     third = jnp.argmax(area)
     p3 = across[third]
-    orientation = jnp.where(_cross2(p2 - p1, p3 - p1) >= 0, 1.0, -1.0)
+    orientation = jnp.where(cross2(p2 - p1, p3 - p1) >= 0, 1.0, -1.0)
     # A point outside the triangle adds the triangles it forms with the edges it sees.
-    added = sum(jnp.maximum(-orientation * _cross2(end - start, across - start), 0.0)
+    added = sum(jnp.maximum(-orientation * cross2(end - start, across - start), 0.0)
                 for start, end in ((p1, p2), (p2, p3), (p3, p1)))
     added = jnp.where(valid, added, -1.0)
     fourth = jnp.argmax(added)
@@ -590,13 +534,13 @@ def _closest_midpoint(start_1, end_1, start_2, end_2):
     """Midpoint of the closest points of two segments (Ericson, Real-Time Collision Detection
     5.1.9), with every division guarded so that degenerate segments give finite values."""
     d1, d2, r = end_1 - start_1, end_2 - start_2, start_1 - start_2
-    a, e, f = _dot(d1, d1), _dot(d2, d2), _dot(d2, r)
-    c, b = _dot(d1, r), _dot(d1, d2)
+    a, e, f = dot(d1, d1), dot(d2, d2), dot(d2, r)
+    c, b = dot(d1, r), dot(d1, d2)
     denominator = a * e - b * b
     eps = jnp.finfo(a.dtype).eps
-    s = jnp.clip(_safe_divide(b * f - c * e, denominator, denominator > eps * a * e), 0.0, 1.0)
-    t = _safe_divide(b * s + f, e, e > 0)
-    s = jnp.where(t < 0, jnp.clip(_safe_divide(-c, a, a > 0), 0.0, 1.0), s)
-    s = jnp.where(t > 1, jnp.clip(_safe_divide(b - c, a, a > 0), 0.0, 1.0), s)
+    s = jnp.clip(safe_divide(b * f - c * e, denominator, denominator > eps * a * e), 0.0, 1.0)
+    t = safe_divide(b * s + f, e, e > 0)
+    s = jnp.where(t < 0, jnp.clip(safe_divide(-c, a, a > 0), 0.0, 1.0), s)
+    s = jnp.where(t > 1, jnp.clip(safe_divide(b - c, a, a > 0), 0.0, 1.0), s)
     t = jnp.clip(t, 0.0, 1.0)
     return (start_1 + s * d1 + start_2 + t * d2) / 2

@@ -18,14 +18,17 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
+from jaxsat._kernels import cross, extremes, project, rotate, safe_normalize
+from jaxsat._pair import PairFrame, cast_pair, check_pair, compiled_query, pair_frame
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
-__all__ = ["Penetration", "penetration", "intersects"]
+__all__ = ["Penetration", "SatAxis", "intersects", "penetration", "sat_candidates", "sat_search"]
 
 
 @jax.tree_util.register_dataclass
@@ -39,63 +42,10 @@ class Penetration:
     """(D,) float: unit world-frame axis from a towards b; moving b by depth * normal separates."""
 
 
-def _check_pair(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> None:
-    """Static checks (shapes only), so they also run under jit and vmap."""
-    for name, value, kind in (("a", a, Polytope), ("b", b, Polytope),
-                              ("pose_a", pose_a, Pose), ("pose_b", pose_b, Pose)):
-        if not isinstance(value, kind):
-            raise ValueError(f"{name} must be a jaxsat.{kind.__name__}, got {type(value).__name__}")
-    _check_one_pair(a, pose_a, b, pose_b)
-
-
-def _check_one_pair(a, pose_a: Pose, b, pose_b: Pose) -> None:
-    """Unbatched inputs of one dimension; a and b: anything with batch_shape and dim."""
-    pose_a_batch, pose_b_batch = pose_a.translation.shape[:-1], pose_b.translation.shape[:-1]
-    if a.batch_shape or b.batch_shape or pose_a_batch or pose_b_batch:
-        raise ValueError("queries take one pair; batch them with jax.vmap (got batched inputs: "
-                         f"a {a.batch_shape}, b {b.batch_shape}, pose_a {pose_a_batch}, "
-                         f"pose_b {pose_b_batch})")
-    dims = {a.dim, b.dim, pose_a.dim, pose_b.dim}
-    if len(dims) != 1:
-        raise ValueError(f"a, pose_a, b, pose_b must share one dimension, got {a.dim}D shape a, "
-                         f"{b.dim}D shape b, {pose_a.dim}D pose_a, {pose_b.dim}D pose_b")
-
-
-def _common_dtype(a, pose_a, b, pose_b) -> jnp.dtype:
-    return jnp.result_type(a.vertices, b.vertices, pose_a.translation, pose_b.translation)
-
-
-def _relative_pose(pose_a: Pose, pose_b: Pose) -> tuple[jax.Array, jax.Array]:
-    """(rotation, translation) mapping b's local coordinates into a's local frame."""
-    rotation_a_t = pose_a.rotation.T
-    return (_project(rotation_a_t, pose_b.rotation.T),
-            _rotate(rotation_a_t, pose_b.translation - pose_a.translation))
-
-
-def _project(axes, points):
-    """(C, D) axes . (V, D) points -> (C, V), spelled out so XLA fuses it (no dot_general)."""
-    return sum(axes[:, None, k] * points[None, :, k] for k in range(axes.shape[-1]))
-
-
-def _rotate(rotation, points):
-    """rotation @ p for (..., D) points, spelled out so XLA fuses it."""
-    return jnp.stack([sum(rotation[r, k] * points[..., k] for k in range(points.shape[-1]))
-                      for r in range(rotation.shape[0])], axis=-1)
-
-
 def _interval_depths(a_min, a_max, b_min, b_max):
     """The better sense of each axis: depth min(b pushed along +n, along -n), and its sign."""
     plus, minus = a_max - b_min, b_max - a_min
     return jnp.minimum(plus, minus), jnp.where(plus <= minus, 1.0, -1.0).astype(plus.dtype)
-
-
-def _safe_normalize(vectors, min_squared_norm):
-    """Unit vectors and a validity mask; (near-)zero vectors give a finite dummy and False."""
-    squared = jnp.sum(vectors**2, axis=-1, keepdims=True)
-    valid = squared > min_squared_norm
-    # Double `where`: keep the invalid branch away from 0/0 so no NaN reaches any gradient.
-    safe_squared = jnp.where(valid, squared, 1.0)
-    return jnp.where(valid, vectors * jax.lax.rsqrt(safe_squared), 0.0), valid[..., 0]
 
 
 def _projection_group(a: Polytope, b: Polytope, b_vertices_in_a, rotation, with_edges: bool):
@@ -106,12 +56,12 @@ def _projection_group(a: Polytope, b: Polytope, b_vertices_in_a, rotation, with_
     The axes are kept as D component arrays (C,), so that every step is elementwise on them
     and XLA fuses the group into a few passes (stacked (C, D) axes ran box pairs 2x slower).
     Faces come first, so the first of equally deep axes is a face normal."""
-    normals_b = _rotate(rotation, b.face_normals)
+    normals_b = rotate(rotation, b.face_normals)
     axes = [jnp.concatenate([a.face_normals[:, k], normals_b[:, k]]) for k in range(a.dim)]
     squared = jnp.ones_like(axes[0])
     if with_edges:
-        crosses = jnp.cross(a.edge_directions[:, None, :],
-                            _rotate(rotation, b.edge_directions)[None, :, :]).reshape(-1, 3)
+        crosses = cross(a.edge_directions[:, None, :],
+                         rotate(rotation, b.edge_directions)[None, :, :]).reshape(-1, 3)
         axes = [jnp.concatenate([axis, crosses[:, k]]) for k, axis in enumerate(axes)]
         crosses_squared = crosses[:, 0] ** 2 + crosses[:, 1] ** 2 + crosses[:, 2] ** 2
         squared = jnp.concatenate([squared, crosses_squared])
@@ -119,8 +69,8 @@ def _projection_group(a: Polytope, b: Polytope, b_vertices_in_a, rotation, with_
     valid = squared > eps * eps  # parallel edges give no axis
     # Double `where`: the invalid branch never reaches rsqrt(0), so no NaN in any gradient.
     inverse_norm = jax.lax.rsqrt(jnp.where(valid, squared, 1.0))
-    depths, signs = _interval_depths(*_extremes(axes, a.vertices),
-                                     *_extremes(axes, b_vertices_in_a))
+    depths, signs = _interval_depths(*extremes(axes, a.vertices),
+                                     *extremes(axes, b_vertices_in_a))
     depths = jnp.where(valid, depths * inverse_norm, jnp.inf)
 
     def axis_of(index):
@@ -129,30 +79,15 @@ def _projection_group(a: Polytope, b: Polytope, b_vertices_in_a, rotation, with_
     return depths, axis_of
 
 
-def _extremes(axes: list[jax.Array], points):
-    """Min and max over points of axis . point, (C,) each, for axes given as D component
-    arrays (C,): a loop over the few vertices keeps every step elementwise, which XLA fuses
-    (a reduce op would be a separate pass). Selects rather than jnp.minimum/maximum, so that
-    a gradient reaches one point with weight 1 even at ties: a maximum splits it between tied
-    points, and under jit XLA may recompute them with different roundings in the backward
-    pass, so that the weights no longer summed to 1 (a depth gradient of norm 1.4 for a box)."""
-    low = high = None
-    for v in range(points.shape[0]):
-        p = sum(axis * points[v, k] for k, axis in enumerate(axes))
-        low = p if low is None else jnp.where(p < low, p, low)
-        high = p if high is None else jnp.where(p > high, p, high)
-    return low, high
-
-
 def _hull_edge_frames(shape: Polytope, rotation=None, translation=None):
     """Per hull edge: a point on it, unit direction (b x a), adjacent face normals a and b."""
     points = shape.vertices[shape.edge_endpoints[:, 0]]
     normals = shape.edge_face_normals
     if rotation is not None:
-        points = _rotate(rotation, points) + translation
-        normals = _rotate(rotation, normals)
+        points = rotate(rotation, points) + translation
+        normals = rotate(rotation, normals)
     first, second = normals[:, 0], normals[:, 1]
-    directions, _ = _safe_normalize(jnp.cross(second, first), 0.0)
+    directions, _ = safe_normalize(cross(second, first), 0.0)
     return points, directions, first, second
 
 
@@ -169,8 +104,8 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     Returns (depths (K_a, K_b), what `_gauss_map_axis` needs to build a winner's axis)."""
     points_a, dir_a, na1, na2 = _hull_edge_frames(a)
     points_b, dir_b, nb1, nb2 = _hull_edge_frames(b, rotation, translation)
-    cba, dba = -_project(dir_a, nb1), -_project(dir_a, nb2)
-    adc, bdc = _project(na1, dir_b), _project(na2, dir_b)
+    cba, dba = -project(dir_a, nb1), -project(dir_a, nb2)
+    adc, bdc = project(na1, dir_b), project(na2, dir_b)
     minkowski_face = (cba * dba < 0) & (adc * bdc < 0) & (cba * bdc > 0)
     # |e_a x e_b| from the cross product itself: 1 - cos^2 rounds (near-)parallel edges to
     # noise, and noise must not pass for a Minkowski face. Components stay separate arrays so
@@ -183,8 +118,8 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     # The Gauss-map arcs fix the orientation: the axis e_a x e_b points out of a iff BDC > 0.
     orientation = jnp.where(bdc > 0, 1.0, -1.0).astype(sine_squared.dtype)
     inverse_sine = jax.lax.rsqrt(jnp.where(valid, sine_squared, 1.0))
-    moment_a, moment_b = jnp.cross(dir_a, points_a), jnp.cross(dir_b, points_b)
-    numerator = -_project(moment_a, dir_b) - _project(dir_a, moment_b)
+    moment_a, moment_b = cross(dir_a, points_a), cross(dir_b, points_b)
+    numerator = -project(moment_a, dir_b) - project(dir_a, moment_b)
     depths = jnp.where(valid, numerator * orientation * inverse_sine, jnp.inf)
     return depths, (dir_a, dir_b, na2)
 
@@ -193,9 +128,9 @@ def _gauss_map_axis(index, dir_a, dir_b, normals_a):
     """The unit axis of flattened edge pair `index`, built only for the winner (its sign is
     the orientation rule of `_edge_axes_by_gauss_map`, BDC > 0)."""
     row, col = jnp.divmod(index, dir_b.shape[0])
-    crossed = jnp.cross(dir_a[row], dir_b[col])
+    crossed = cross(dir_a[row], dir_b[col])
     sign = jnp.where(jnp.dot(normals_a[row], dir_b[col]) > 0, 1.0, -1.0)
-    return sign * _safe_normalize(crossed, 0.0)[0]
+    return sign * safe_normalize(crossed, 0.0)[0]
 
 
 def _use_gauss_map(a: Polytope, b: Polytope) -> bool:
@@ -210,21 +145,21 @@ def _use_gauss_map(a: Polytope, b: Polytope) -> bool:
     return max(a.edge_directions.shape[0], b.edge_directions.shape[0]) > max_directions
 
 
-def _candidate_groups(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, prune: bool = True):
-    """The candidate axes of one query, in groups of (depths (C,), axis_of), plus b's vertices
-    in a's frame. `axis_of` maps an index of the group to its unit axis in a's frame, so that
-    a costly group builds only its winner's axis; groups stay apart because concatenating
-    them would make XLA materialise every depth. prune=False tests every edge-direction pair
-    by projection, Gauss map or not."""
-    rotation, translation = _relative_pose(pose_a, pose_b)
-    b_vertices_in_a = _rotate(rotation, b.vertices) + translation
+def _candidate_groups(frame: PairFrame, prune: bool = True):
+    """The candidate axes of one query, in groups of (depths (C,), axis_of). `axis_of` maps
+    an index of the group to its unit axis in a's frame, so that a costly group builds only
+    its winner's axis; groups stay apart because concatenating them would make XLA
+    materialise every depth. prune=False tests every edge-direction pair by projection,
+    Gauss map or not."""
+    a, b = frame.a, frame.b
     gauss_map = a.dim == 3 and prune and _use_gauss_map(a, b)
     with_edges = a.dim == 3 and not gauss_map
-    groups = [_projection_group(a, b, b_vertices_in_a, rotation, with_edges)]
+    groups = [_projection_group(a, b, frame.b_vertices, frame.rotation, with_edges)]
     if gauss_map:
-        edge_depths, edge_data = _edge_axes_by_gauss_map(a, b, rotation, translation)
+        edge_depths, edge_data = _edge_axes_by_gauss_map(a, b, frame.rotation,
+                                                         frame.translation)
         groups.append((edge_depths, lambda index: _gauss_map_axis(index, *edge_data)))
-    return groups, b_vertices_in_a
+    return groups
 
 
 def _winner(depths: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -242,7 +177,7 @@ def _winner(depths: jax.Array) -> tuple[jax.Array, jax.Array]:
     return row_minima[row], row * depths.shape[1] + jnp.argmin(depths[row])
 
 
-def _best_axis(groups) -> tuple[jax.Array, jax.Array]:
+def _best_axis(groups):
     """The smallest depth over all groups and its unit axis (in a's frame)."""
     best_depth, best_axis = None, None
     for depths, axis_of in groups:
@@ -257,13 +192,51 @@ def _best_axis(groups) -> tuple[jax.Array, jax.Array]:
     return best_depth, best_axis
 
 
-def _cast_pair(a, pose_a, b, pose_b):
-    dtype = _common_dtype(a, pose_a, b, pose_b)
-    cast = lambda tree: jax.tree.map(  # noqa: E731
-        lambda leaf: leaf.astype(dtype) if jnp.issubdtype(leaf.dtype, jnp.floating) else leaf, tree)
-    return cast(a), cast(pose_a), cast(b), cast(pose_b)
+class SatAxis(NamedTuple):
+    """The SAT's answer for one pair, in a's frame (see the module docstring)."""
+
+    depth: jax.Array
+    """() float: min over candidate axes of the depth; > 0 iff the shapes overlap."""
+    axis: jax.Array
+    """(D,) float: unit axis of that depth, from a towards b, in a's frame."""
 
 
+def sat_search(frame: PairFrame, prune: bool = True) -> SatAxis:
+    """The deepest-separating candidate axis of a prepared pair and its depth.
+
+    With Gauss-map edge pairs, the winner's depth is measured again by projecting both
+    shapes on its unit axis: exactly the depth its normal gives (the Gauss-map shortcut loses
+    float32 digits). Projected axes need no such fix."""
+    groups = _candidate_groups(frame, prune)
+    depth, axis = _best_axis(groups)
+    if len(groups) > 1:
+        depth = _support(axis, frame.a.vertices) - -_support(-axis, frame.b_vertices)
+    return SatAxis(depth, axis)
+
+
+def sat_candidates(frame: PairFrame) -> tuple[jax.Array, jax.Array]:
+    """(axes (C, D), valid (C,)): every projected candidate as a unit axis from a towards b
+    in a's frame (face normals, and for boxes the edge crosses), plus the best Gauss-map edge
+    pair where there is one; valid is False for vanishing crosses."""
+    axes, valid = [], []
+    for depths, axis_of in _candidate_groups(frame):
+        if depths.ndim == 1:
+            axes.append(jax.vmap(axis_of)(jnp.arange(depths.shape[0])))
+            valid.append(jnp.isfinite(depths))
+        else:
+            depth, index = _winner(depths)
+            axes.append(axis_of(index)[None])
+            valid.append(jnp.isfinite(depth)[None])
+    return jnp.concatenate(axes), jnp.concatenate(valid)
+
+
+def _check_penetration(a, pose_a, b, pose_b, *, prune=True) -> None:
+    check_pair(a, pose_a, b, pose_b)
+    if not isinstance(prune, bool):
+        raise ValueError(f"prune must be True or False, got {prune!r}")
+
+
+@compiled_query(_check_penetration, static_argnames=("prune",))
 def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
                 prune: bool = True) -> Penetration:
     """Exact SAT penetration depth and axis for one pair of convex shapes.
@@ -285,18 +258,9 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
       difference and at most the distance between the shapes. normal is a world-frame unit
       vector pointing from a towards b.
     """
-    _check_pair(a, pose_a, b, pose_b)
-    if not isinstance(prune, bool):
-        raise ValueError(f"prune must be True or False, got {prune!r}")
-    a, pose_a, b, pose_b = _cast_pair(a, pose_a, b, pose_b)
-    groups, b_vertices_in_a = _candidate_groups(a, pose_a, b, pose_b, prune)
-    depth, axis = _best_axis(groups)
-    if len(groups) > 1:
-        # With Gauss-map edge pairs, the winner's depth is measured again by projecting both
-        # shapes on its unit axis: exactly the depth its normal gives (the Gauss-map shortcut
-        # loses float32 digits). Projected axes need no such fix.
-        depth = _support(axis, a.vertices) - -_support(-axis, b_vertices_in_a)
-    return Penetration(depth=depth, normal=_rotate(pose_a.rotation, axis))
+    frame = pair_frame(a, pose_a, b, pose_b)
+    found = sat_search(frame, prune)
+    return Penetration(depth=found.depth, normal=frame.direction_to_world(found.axis))
 
 
 def _support(axis, points):
@@ -314,10 +278,11 @@ def _world_aabb(shape: Polytope, pose: Pose) -> tuple[jax.Array, jax.Array]:
 
 
 def _min_depth(a, pose_a, b, pose_b) -> jax.Array:
-    groups, _ = _candidate_groups(a, pose_a, b, pose_b)
-    return functools.reduce(jnp.minimum, [jnp.min(group[0]) for group in groups])
+    groups = _candidate_groups(pair_frame(a, pose_a, b, pose_b))
+    return functools.reduce(jnp.minimum, [jnp.min(depths) for depths, _ in groups])
 
 
+@compiled_query(check_pair)
 def intersects(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> jax.Array:
     """True where the two shapes overlap or touch (penetration depth >= 0).
 
@@ -325,8 +290,7 @@ def intersects(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> jax.Arra
     Under jax.vmap that skip would not pay (both branches of a batched cond run), so the
     batched query goes straight to the SAT minimum; the answer is the same either way.
     """
-    _check_pair(a, pose_a, b, pose_b)
-    a, pose_a, b, pose_b = _cast_pair(a, pose_a, b, pose_b)
+    a, pose_a, b, pose_b = cast_pair(a, pose_a, b, pose_b)
     # A boolean has no derivative; stopping gradients here keeps `custom_vmap` (which has no
     # reverse-mode rule) out of any gradient of a function that merely calls `intersects`.
     return _intersects_pair(*jax.lax.stop_gradient((a, pose_a, b, pose_b)))

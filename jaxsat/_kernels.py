@@ -1,0 +1,240 @@
+"""Kernel layer: small-vector maths and safe numerics that every query is built from.
+
+Every query is written for one pair and batched with `jax.vmap`, so each array here is tiny
+(a few vertices, D = 2 or 3 coordinates) and gains a long leading batch axis. What is fast
+then is decided by how XLA's CPU backend fuses the batched program, which gives the rules
+below. Each was measured on the kernels (benchmarks/README.md, "Performance to the limit");
+breaking one typically costs 2x.
+
+1. **Component form.** Write small products out as sums over the D coordinates
+   (`project`, `rotate`, `dot`, `cross`) instead of `@`, `jnp.dot`, `jnp.einsum` or
+   `jnp.linalg`: a batched (V, 3) @ (3, 3) becomes a `dot_general` that XLA does not fuse
+   with its neighbours, while the spelled-out sums are elementwise and fuse into one pass.
+   Where many axes meet few points, keep the axes as D separate arrays (C,) rather than one
+   stacked (C, D) array, so every step stays elementwise.
+2. **Few reductions over long axes.** A reduce op is a separate pass that its consumers do
+   not fuse with. Over a handful of entries, a Python loop of selects (`extremes`,
+   `support_point`) fuses; a 2-D array of depths is reduced row by row and then once more.
+3. **Select, not maximum, at ties.** `jnp.maximum` splits a gradient between tied entries,
+   and under `jit` XLA may recompute the tied values with different roundings in the
+   backward pass, so that the shares no longer sum to 1. A select (`jnp.where(p > best, ...)`)
+   sends the whole gradient to one entry.
+4. **Double `where` for every guarded division, square root or logarithm.** The untaken
+   branch of `jnp.where` is still differentiated: `jnp.where(ok, x / y, 0)` has a NaN
+   gradient where y = 0. The safe functions here replace the bad input first
+   (`jnp.where(ok, y, 1)`) and say which NaN they prevent.
+5. **Materialise values with many broadcast consumers.** XLA fuses a cheap elementwise
+   producer into each consumer and so recomputes it per consumer element; `materialize`
+   stores it once (optimisation barriers are dropped before fusion on CPU, so they cannot).
+
+Nothing here imports from the rest of the package: the pair frame (`_pair`) and every query
+module stand on this one.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+__all__ = [
+    "chord",
+    "cross",
+    "cross2",
+    "dot",
+    "extremes",
+    "materialize",
+    "orthonormal_basis",
+    "project",
+    "rotate",
+    "safe_divide",
+    "safe_normalize",
+    "safe_sqrt",
+    "support_index",
+    "take_vec",
+    "Vec",
+    "as_vec",
+    "as_vecs",
+    "vadd",
+    "vcross",
+    "vcross2",
+    "vdot",
+    "vscale",
+    "vselect",
+    "vsub",
+    "vsum",
+]
+
+
+def project(axes, points):
+    """(C, D) axes . (V, D) points -> (C, V), in component form (rule 1)."""
+    return sum(axes[:, None, k] * points[None, :, k] for k in range(axes.shape[-1]))
+
+
+def rotate(rotation, points):
+    """rotation @ p for (..., D) points, in component form (rule 1)."""
+    return jnp.stack([sum(rotation[r, k] * points[..., k] for k in range(points.shape[-1]))
+                      for r in range(rotation.shape[0])], axis=-1)
+
+
+def dot(x, y):
+    """x . y over the last axis, (...)."""
+    return sum(x[..., k] * y[..., k] for k in range(x.shape[-1]))
+
+
+def cross(x, y):
+    """3D cross product over the last axis, (..., 3)."""
+    return jnp.stack([x[..., 1] * y[..., 2] - x[..., 2] * y[..., 1],
+                      x[..., 2] * y[..., 0] - x[..., 0] * y[..., 2],
+                      x[..., 0] * y[..., 1] - x[..., 1] * y[..., 0]], axis=-1)
+
+
+def cross2(x, y):
+    """2D cross product (a scalar per pair of vectors) over the last axis, (...)."""
+    return x[..., 0] * y[..., 1] - x[..., 1] * y[..., 0]
+
+
+def chord(x, y):
+    """|x - y| for unit vectors: about the angle between them, resolved down to rounding
+    (1 - x . y rounds to 0 below 3e-4 radians in float32)."""
+    difference = x - y
+    return jnp.sqrt(dot(difference, difference))
+
+
+def safe_divide(numerator, denominator, ok):
+    """numerator / denominator where `ok`, else 0. Prevents the NaN gradient of x / 0 in the
+    untaken branch (rule 4)."""
+    return jnp.where(ok, numerator / jnp.where(ok, denominator, 1.0), 0.0)
+
+
+def safe_sqrt(x):
+    """sqrt(max(x, 0)) with a zero gradient at 0 instead of the infinite d sqrt / dx (whose
+    product with a zero cotangent is NaN)."""
+    positive = x > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
+
+
+def safe_normalize(vectors, min_squared_norm):
+    """(unit vectors, valid) for (..., D) vectors: vectors whose squared norm is at most
+    `min_squared_norm` give zeros and False. Prevents the NaN of 0 / 0 (and its gradient)."""
+    squared = jnp.sum(vectors**2, axis=-1, keepdims=True)
+    valid = squared > min_squared_norm
+    safe_squared = jnp.where(valid, squared, 1.0)
+    return jnp.where(valid, vectors * jax.lax.rsqrt(safe_squared), 0.0), valid[..., 0]
+
+
+def orthonormal_basis(normal):
+    """Two unit vectors completing a unit 3D `normal` to a right-handed orthonormal basis
+    (Duff et al. 2017: branch-free; continuous except where normal's z changes sign)."""
+    x, y, z = normal[0], normal[1], normal[2]
+    sign = jnp.where(z >= 0, 1.0, -1.0).astype(normal.dtype)
+    scale = -1.0 / (sign + z)
+    mixed = x * y * scale
+    first = jnp.stack([1.0 + sign * x * x * scale, sign * mixed, -sign * x])
+    second = jnp.stack([mixed, sign + y * y * scale, -y])
+    return first, second
+
+
+def extremes(axes: list[jax.Array], points):
+    """(min, max) over points of axis . point, (C,) each, for axes given as D component
+    arrays (C,): a select chain over the few points (rules 1-3), so a tie sends the whole
+    gradient to one point."""
+    low = high = None
+    for v in range(points.shape[0]):
+        p = sum(axis * points[v, k] for k, axis in enumerate(axes))
+        low = p if low is None else jnp.where(p < low, p, low)
+        high = p if high is None else jnp.where(p > high, p, high)
+    return low, high
+
+
+# --------------------------------------------------------------------------------------------
+# Scalar form: a vector as a tuple of D scalars. Under `vmap` every scalar is one (N,) array,
+# so iterative per-pair code (GJK, Newton steps) runs at the full vector width along the
+# batch; small (S, D) arrays per pair would put the tiny axes innermost instead.
+# --------------------------------------------------------------------------------------------
+
+Vec = tuple
+"""A vector as a tuple of D scalar arrays."""
+
+
+def as_vec(vector) -> Vec:
+    """A (D,) array as a Vec."""
+    return tuple(vector[i] for i in range(vector.shape[-1]))
+
+
+def as_vecs(points) -> list[Vec]:
+    """(V, D) points as a list of V Vecs."""
+    return [as_vec(points[v]) for v in range(points.shape[0])]
+
+
+def vadd(x: Vec, y: Vec) -> Vec:
+    return tuple(a + b for a, b in zip(x, y, strict=True))
+
+
+def vsub(x: Vec, y: Vec) -> Vec:
+    return tuple(a - b for a, b in zip(x, y, strict=True))
+
+
+def vscale(s, x: Vec) -> Vec:
+    return tuple(s * a for a in x)
+
+
+def vsum(vectors: list[Vec]) -> Vec:
+    total = vectors[0]
+    for vector in vectors[1:]:
+        total = vadd(total, vector)
+    return total
+
+
+def vdot(x: Vec, y: Vec):
+    return sum(a * b for a, b in zip(x, y, strict=True))
+
+
+def vcross(x: Vec, y: Vec) -> Vec:
+    return (x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0])
+
+
+def vcross2(x: Vec, y: Vec):
+    """2D cross product, a scalar."""
+    return x[0] * y[1] - x[1] * y[0]
+
+
+def vselect(condition, x: Vec, y: Vec) -> Vec:
+    return tuple(jnp.where(condition, a, b) for a, b in zip(x, y, strict=True))
+
+
+def support_index(direction: Vec, points: list[Vec]):
+    """Index () int32 of the first of `points` with the largest projection on `direction`,
+    by a select chain (rules 2-3); padding rows, which repeat row 0, never win over it.
+    Materialised (rule 5): at a tie, two fused copies of the chain could round differently
+    and pick different points, so every consumer must read this one value."""
+    best_index = jnp.zeros((), jnp.int32)
+    best = vdot(direction, points[0])
+    for v in range(1, len(points)):
+        p = vdot(direction, points[v])
+        better = p > best
+        best = jnp.where(better, p, best)
+        best_index = jnp.where(better, v, best_index)
+    return materialize(best_index)
+
+
+def take_vec(points: list[Vec], index) -> Vec:
+    """points[index] by a select chain over the few points (elementwise; a batched gather is
+    not)."""
+    chosen = points[0]
+    for v in range(1, len(points)):
+        chosen = vselect(index == v, points[v], chosen)
+    return chosen
+
+
+def materialize(tree):
+    """The same values, computed once and stored (rule 5): a reduction is not fused into its
+    consumers, and a maximum with the smallest value is exact."""
+    def stored(leaf):
+        if jnp.issubdtype(leaf.dtype, jnp.floating):
+            lowest = -jnp.inf
+        elif leaf.dtype == jnp.bool_:
+            return jnp.any(jnp.stack([leaf, jnp.zeros_like(leaf)]), axis=0)
+        else:
+            lowest = jnp.iinfo(leaf.dtype).min
+        return jnp.max(jnp.stack([leaf, jnp.full_like(leaf, lowest)]), axis=0)
+    return jax.tree.map(stored, tree)

@@ -1,0 +1,128 @@
+"""The pair frame: one query's inputs checked, cast to one dtype, and b placed in a's frame.
+
+Every pair query (SAT, distance, smoothing, contacts) works in a's local frame, where a's
+vertices are the stored ones and b's are moved by the relative pose. `pair_frame` does that
+preparation once per query; `check_pair` runs the static checks (shapes and types only, so
+they hold under `jit` and `vmap` too) and raises the errors users see.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from jaxsat._kernels import project, rotate
+from jaxsat._poses import Pose
+from jaxsat._shapes import Polytope
+
+__all__ = ["PairFrame", "cast_pair", "check_one_pair", "check_pair", "compiled_query",
+           "pair_frame", "relative_pose"]
+
+
+def check_pair(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> None:
+    """Raise ValueError unless a and b are Polytopes and the poses Poses, unbatched, of one
+    dimension."""
+    for name, value, kind in (("a", a, Polytope), ("b", b, Polytope),
+                              ("pose_a", pose_a, Pose), ("pose_b", pose_b, Pose)):
+        if not isinstance(value, kind):
+            raise ValueError(f"{name} must be a jaxsat.{kind.__name__}, got {type(value).__name__}")
+    check_one_pair(a, pose_a, b, pose_b)
+
+
+def check_one_pair(a, pose_a: Pose, b, pose_b: Pose) -> None:
+    """Unbatched inputs of one dimension; a and b: anything with batch_shape and dim (so
+    compounds share the check)."""
+    pose_a_batch, pose_b_batch = pose_a.translation.shape[:-1], pose_b.translation.shape[:-1]
+    if a.batch_shape or b.batch_shape or pose_a_batch or pose_b_batch:
+        raise ValueError("queries take one pair; batch them with jax.vmap (got batched inputs: "
+                         f"a {a.batch_shape}, b {b.batch_shape}, pose_a {pose_a_batch}, "
+                         f"pose_b {pose_b_batch})")
+    dims = {a.dim, b.dim, pose_a.dim, pose_b.dim}
+    if len(dims) != 1:
+        raise ValueError(f"a, pose_a, b, pose_b must share one dimension, got {a.dim}D shape a, "
+                         f"{b.dim}D shape b, {pose_a.dim}D pose_a, {pose_b.dim}D pose_b")
+
+
+def cast_pair(a, pose_a, b, pose_b):
+    """The four inputs as JAX arrays, every float leaf in their common dtype (outputs follow
+    it). NumPy leaves (shapes sliced with np.asarray, say) become JAX arrays, so that traced
+    indices can index them."""
+    dtype = jnp.result_type(a.vertices, b.vertices, pose_a.translation, pose_b.translation)
+    cast = lambda tree: jax.tree.map(  # noqa: E731
+        lambda leaf: jnp.asarray(leaf, dtype if jnp.issubdtype(leaf.dtype, jnp.floating)
+                                 else None), tree)
+    return cast(a), cast(pose_a), cast(b), cast(pose_b)
+
+
+def relative_pose(pose_a: Pose, pose_b: Pose) -> tuple[jax.Array, jax.Array]:
+    """(rotation, translation) mapping b's local coordinates into a's local frame."""
+    rotation_a_t = pose_a.rotation.T
+    return (project(rotation_a_t, pose_b.rotation.T),
+            rotate(rotation_a_t, pose_b.translation - pose_a.translation))
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class PairFrame:
+    """One pair in a's local frame, in the common dtype."""
+
+    a: Polytope
+    """a, cast."""
+    b: Polytope
+    """b, cast (its fields stay in b's own frame)."""
+    pose_a: Pose
+    """a's pose, cast: maps results back to the world."""
+    rotation: jax.Array
+    """(D, D) float: b's local directions in a's frame."""
+    translation: jax.Array
+    """(D,) float: b's local origin in a's frame."""
+    b_vertices: jax.Array
+    """(V_b, D) float: b's vertices in a's frame."""
+
+    @property
+    def dim(self) -> int:
+        return self.a.dim
+
+    @property
+    def dtype(self):
+        return self.a.vertices.dtype
+
+    def to_world(self, points):
+        """(..., D) points of a's frame in world coordinates."""
+        return rotate(self.pose_a.rotation, points) + self.pose_a.translation
+
+    def direction_to_world(self, directions):
+        """(..., D) directions of a's frame in world coordinates."""
+        return rotate(self.pose_a.rotation, directions)
+
+
+def pair_frame(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> PairFrame:
+    """Check, cast and place b in a's frame (the first step of every pair query)."""
+    check_pair(a, pose_a, b, pose_b)
+    a, pose_a, b, pose_b = cast_pair(a, pose_a, b, pose_b)
+    rotation, translation = relative_pose(pose_a, pose_b)
+    b_vertices = rotate(rotation, b.vertices) + translation
+    return PairFrame(a, b, pose_a, rotation, translation, b_vertices)
+
+
+def compiled_query(check, static_argnames=()):
+    """Decorator for a public pair query: the static checks `check(*args, **kwargs)` run in
+    Python first (so bad input raises a clear error, never a tracing failure), then the query
+    runs through `jax.jit`. An eager call compiles once per size class, dtype and static
+    option and then costs one dispatch; under a user's `jit`, `vmap` or `grad` the inner
+    `jit` is traced into theirs and changes nothing."""
+    def wrap(function):
+        compiled = jax.jit(function, static_argnames=static_argnames)
+
+        @functools.wraps(function)
+        def query(*args, **kwargs):
+            check(*args, **kwargs)
+            return compiled(*args, **kwargs)
+
+        query.uncompiled = function
+        return query
+
+    return wrap
