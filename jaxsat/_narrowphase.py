@@ -23,12 +23,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxsat._kernels import cross, extremes, project, rotate, safe_normalize
+from jaxsat._kernels import cross, dot, extremes, project, rotate, safe_normalize
 from jaxsat._pair import PairFrame, cast_pair, check_pair, compiled_query, pair_frame
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
-__all__ = ["Penetration", "SatAxis", "intersects", "penetration", "sat_candidates", "sat_search"]
+__all__ = ["Penetration", "SatAxis", "intersects", "penetration", "sat_runner_up", "sat_search"]
 
 
 @jax.tree_util.register_dataclass
@@ -76,7 +76,11 @@ def _projection_group(a: Polytope, b: Polytope, b_vertices_in_a, rotation, with_
     def axis_of(index):
         return signs[index] * inverse_norm[index] * jnp.stack([axis[index] for axis in axes])
 
-    return depths, axis_of
+    def cosine_to(unit):
+        """(C,) cosines between each candidate's signed unit axis and `unit`."""
+        return sum(axis * unit[k] for k, axis in enumerate(axes)) * inverse_norm * signs
+
+    return depths, axis_of, cosine_to
 
 
 def _hull_edge_frames(shape: Polytope, rotation=None, translation=None):
@@ -158,7 +162,7 @@ def _candidate_groups(frame: PairFrame, prune: bool = True):
     if gauss_map:
         edge_depths, edge_data = _edge_axes_by_gauss_map(a, b, frame.rotation,
                                                          frame.translation)
-        groups.append((edge_depths, lambda index: _gauss_map_axis(index, *edge_data)))
+        groups.append((edge_depths, lambda index: _gauss_map_axis(index, *edge_data), None))
     return groups
 
 
@@ -180,7 +184,7 @@ def _winner(depths: jax.Array) -> tuple[jax.Array, jax.Array]:
 def _best_axis(groups):
     """The smallest depth over all groups and its unit axis (in a's frame)."""
     best_depth, best_axis = None, None
-    for depths, axis_of in groups:
+    for depths, axis_of, _ in groups:
         depth, index = _winner(depths)
         axis = axis_of(index)
         if best_depth is None:
@@ -214,20 +218,30 @@ def sat_search(frame: PairFrame, prune: bool = True) -> SatAxis:
     return SatAxis(depth, axis)
 
 
-def sat_candidates(frame: PairFrame) -> tuple[jax.Array, jax.Array]:
-    """(axes (C, D), valid (C,)): every projected candidate as a unit axis from a towards b
-    in a's frame (face normals, and for boxes the edge crosses), plus the best Gauss-map edge
-    pair where there is one; valid is False for vanishing crosses."""
-    axes, valid = [], []
-    for depths, axis_of in _candidate_groups(frame):
-        if depths.ndim == 1:
-            axes.append(jax.vmap(axis_of)(jnp.arange(depths.shape[0])))
-            valid.append(jnp.isfinite(depths))
+def sat_runner_up(frame: PairFrame, min_angle) -> jax.Array:
+    """(D,) unit axis (a's frame) of the best candidate more than `min_angle` radians (may be
+    traced) from the winner: where two penetration directions tie, the other one. Projected
+    candidates near the winner are masked (padding repeats a face normal, and parallel faces
+    of a and b give one direction); a Gauss-map group offers its best pair unless that is near
+    the winner. With no such candidate, the winner's own axis."""
+    groups = _candidate_groups(frame)
+    _, winner = _best_axis(groups)
+    min_cosine = jnp.cos(min_angle)
+    best_depth, best_axis = None, None
+    for depths, axis_of, cosine_to in groups:
+        if cosine_to is not None:
+            depths = jnp.where(cosine_to(winner) >= min_cosine, jnp.inf, depths)
+        depth, index = _winner(depths)
+        axis = axis_of(index)
+        if cosine_to is None:
+            depth = jnp.where(dot(axis, winner) >= min_cosine, jnp.inf, depth)
+        if best_depth is None:
+            best_depth, best_axis = depth, axis
         else:
-            depth, index = _winner(depths)
-            axes.append(axis_of(index)[None])
-            valid.append(jnp.isfinite(depth)[None])
-    return jnp.concatenate(axes), jnp.concatenate(valid)
+            better = depth < best_depth
+            best_depth = jnp.where(better, depth, best_depth)
+            best_axis = jnp.where(better, axis, best_axis)
+    return jnp.where(jnp.isfinite(best_depth), best_axis, winner)
 
 
 def _check_penetration(a, pose_a, b, pose_b, *, prune=True) -> None:
@@ -279,7 +293,7 @@ def _world_aabb(shape: Polytope, pose: Pose) -> tuple[jax.Array, jax.Array]:
 
 def _min_depth(a, pose_a, b, pose_b) -> jax.Array:
     groups = _candidate_groups(pair_frame(a, pose_a, b, pose_b))
-    return functools.reduce(jnp.minimum, [jnp.min(depths) for depths, _ in groups])
+    return functools.reduce(jnp.minimum, [jnp.min(depths) for depths, _, _ in groups])
 
 
 @compiled_query(check_pair)

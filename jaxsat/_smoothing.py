@@ -41,9 +41,10 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxsat import _kernels as kernels
 from jaxsat._closest import exact_distance
-from jaxsat._kernels import dot, safe_divide, safe_normalize
-from jaxsat._narrowphase import sat_candidates
+from jaxsat._kernels import Vec, dot, materialize, safe_divide
+from jaxsat._narrowphase import sat_runner_up
 from jaxsat._pair import PairFrame
 from jaxsat._shapes import Polytope
 
@@ -66,205 +67,261 @@ _SECOND_START_ANGLE = 4.0
 
 
 class _Moments(NamedTuple):
-    """soft_gap and its first two derivatives in the axis, at one axis (a's frame)."""
+    """soft_gap and its first two derivatives in the axis, at one axis (a's frame), in
+    scalar form (see `_kernels`): every entry one scalar per pair."""
 
     value: jax.Array
     """() soft_gap(u)."""
-    gradient: jax.Array
-    """(D,) q - p: soft-argmin point of b minus soft-argmax point of a."""
-    spread: jax.Array
-    """(D, D) covariance of a's softmax weights plus that of b's: the Hessian is -spread/tau."""
+    gradient: Vec
+    """D scalars: q - p, the soft-argmin point of b minus the soft-argmax point of a."""
+    spread: tuple[Vec, ...]
+    """D x D scalars: covariance of a's softmax weights plus b's; the Hessian is -spread/tau."""
 
 
 def _soft_max(projections, mask, tau):
-    """(tau log sum exp(x / tau), softmax weights) over the real entries."""
+    """tau log sum exp(x / tau) over the real entries."""
     top = jnp.max(jnp.where(mask, projections, -jnp.inf))
     # Padding never reaches exp (double where): no inf * 0 in any gradient.
     terms = jnp.where(mask, jnp.exp((jnp.where(mask, projections, top) - top) / tau), 0.0)
-    total = jnp.sum(terms)
-    return top + tau * jnp.log(total), terms / total
+    return top + tau * jnp.log(jnp.sum(terms))
 
 
-def _moments(axis, a_vertices, a_mask, b_vertices, b_mask, tau, centres) -> _Moments:
-    """soft_gap and its derivatives at `axis`. Vertices are centred (centres: one point per
-    shape) before the second moments, so that far-apart shapes lose no digits to cancellation."""
-    soft_a, weights_a = _soft_max(dot(a_vertices, axis), a_mask, tau)
-    soft_b, weights_b = _soft_max(-dot(b_vertices, axis), b_mask, tau)
-    centred_a, centred_b = a_vertices - centres[0], b_vertices - centres[1]
-    mean_a = weights_a @ centred_a
-    mean_b = weights_b @ centred_b
-    spread = ((weights_a[:, None] * centred_a).T @ centred_a - jnp.outer(mean_a, mean_a)
-              + (weights_b[:, None] * centred_b).T @ centred_b - jnp.outer(mean_b, mean_b))
-    return _Moments(value=-soft_b - soft_a, gradient=(mean_b + centres[1]) - (mean_a + centres[0]),
-                    spread=spread)
+class _Summary(NamedTuple):
+    """What the search needs of both shapes' vertices, set up once: centred vertices of a
+    and of b stacked (b's negated, so that both soft extremes are soft maxima), and per vertex
+    the features [1, x, x x'] whose softmax-weighted sums give every moment in one pass."""
+
+    points: jax.Array
+    """(V_a + V_b, D) float: a's vertices minus a's centre; minus (b's minus b's centre)."""
+    offsets: jax.Array
+    """(2, D) float: a's centre and minus b's centre (projections add axis . offset)."""
+    features: jax.Array
+    """(V_a + V_b, K) float: 1, the point's coordinates, the upper triangle of x x'."""
+    mask: jax.Array
+    """(2, V_a + V_b) bool: real vertices of a (row 0) and of b (row 1)."""
 
 
-def _tangent_basis(axis):
-    """(D - 1, D) orthonormal basis of the plane across a unit axis."""
-    if axis.shape[0] == 2:
-        return jnp.stack([-axis[1], axis[0]])[None]
-    helper = jnp.where(jnp.abs(axis[0]) < 0.6, jnp.array([1.0, 0.0, 0.0], axis.dtype),
-                       jnp.array([0.0, 1.0, 0.0], axis.dtype))
-    first = safe_normalize(jnp.cross(axis, helper), 0.0)[0]
-    return jnp.stack([first, jnp.cross(axis, first)])
+def _summary(frame: PairFrame) -> _Summary:
+    a, b_vertices = frame.a, frame.b_vertices
+    # Centred on one vertex each, so that far-apart shapes lose no digits in the moments.
+    centre_a, centre_b = a.vertices[0], b_vertices[0]
+    points = jnp.concatenate([a.vertices - centre_a, -(b_vertices - centre_b)])
+    dim = points.shape[-1]
+    features = jnp.stack([jnp.ones_like(points[:, 0]), *(points[:, k] for k in range(dim)),
+                          *(points[:, k] * points[:, m] for k, m in _upper(dim))], axis=-1)
+    side = jnp.arange(points.shape[0]) >= a.vertices.shape[0]
+    real = jnp.concatenate([a.vertex_mask, frame.b.vertex_mask])
+    return _Summary(points, jnp.stack([centre_a, -centre_b]), features,
+                    jnp.stack([real & ~side, real & side]))
+
+
+def _upper(dim: int) -> list[tuple[int, int]]:
+    return [(k, m) for k in range(dim) for m in range(k, dim)]
+
+
+def _packed_moments(summary: _Summary, axis: Vec, tau) -> jax.Array:
+    """(2, K + 1): per shape, its soft extreme (tau log sum exp of its projections) and the
+    softmax-weighted sums of the features: three passes over a batch (the maxima, the
+    weights, stored because every sum reads them, and the sums in one reduction)."""
+    projections = sum(summary.points[:, k] * axis[k] for k in range(len(axis)))
+    top = jnp.max(jnp.where(summary.mask, projections, -jnp.inf), axis=1)
+    shifted = jnp.where(summary.mask, projections - top[:, None], 0.0)
+    weights = materialize(jnp.where(summary.mask, jnp.exp(shifted / tau), 0.0))
+    sums = jnp.sum(weights[:, :, None] * summary.features[None], axis=1)
+    soft = top + tau * jnp.log(sums[:, 0]) + sum(summary.offsets[:, k] * axis[k]
+                                                 for k in range(len(axis)))
+    return jnp.concatenate([soft[:, None], sums], axis=1)
+
+
+def _unpack(summary: _Summary, packed) -> _Moments:
+    """The scalar-form _Moments of soft_gap from `_packed_moments`' output."""
+    dim = summary.points.shape[-1]
+    total = (packed[0, 1], packed[1, 1])
+    mean = [[packed[s, 2 + k] / total[s] for k in range(dim)] for s in (0, 1)]
+    spread = [[None] * dim for _ in range(dim)]
+    for index, (k, m) in enumerate(_upper(dim)):
+        entry = sum(packed[s, 2 + dim + index] / total[s] - mean[s][k] * mean[s][m]
+                    for s in (0, 1))
+        spread[k][m] = spread[m][k] = entry
+    # Row 0 is a as it is, row 1 is b negated: b's soft minimum is minus row 1's soft
+    # maximum, and b's soft-argmin point is minus its row's mean.
+    gradient = tuple(-(mean[1][k] + summary.offsets[1, k]) - (mean[0][k] + summary.offsets[0, k])
+                     for k in range(dim))
+    return _Moments(value=-packed[1, 0] - packed[0, 0], gradient=gradient,
+                    spread=tuple(tuple(row) for row in spread))
+
+
+def _tangent_basis(axis: Vec) -> list[Vec]:
+    """D - 1 orthonormal vectors across a unit axis."""
+    if len(axis) == 2:
+        return [(-axis[1], axis[0])]
+    one, zero = jnp.ones_like(axis[0]), jnp.zeros_like(axis[0])
+    use_x = jnp.abs(axis[0]) < 0.6
+    helper = kernels.vselect(use_x, (one, zero, zero), (zero, one, zero))
+    first = kernels.vcross(axis, helper)
+    first = kernels.vscale(jax.lax.rsqrt(jnp.maximum(kernels.vdot(first, first), jnp.finfo(
+        axis[0].dtype).tiny)), first)
+    return [first, kernels.vcross(axis, first)]
+
+
+def _riemannian(axis: Vec, moments: _Moments, tau):
+    """(tangent basis, gradient (m scalars), Hessian (m x m scalars)) of soft_gap on the
+    sphere: the Euclidean Hessian -spread / tau in the tangent plane, minus the normal
+    derivative (u . gradient) times the identity (the sphere's curvature)."""
+    basis = _tangent_basis(axis)
+    gradient = tuple(kernels.vdot(e, moments.gradient) for e in basis)
+    spread_times = [tuple(kernels.vdot(row, e) for row in moments.spread) for e in basis]
+    normal = kernels.vdot(axis, moments.gradient)
+    hessian = tuple(tuple(-kernels.vdot(basis[i], spread_times[j]) / tau
+                          - (normal if i == j else 0.0) for j in range(len(basis)))
+                    for i in range(len(basis)))
+    return basis, gradient, hessian
 
 
 def _trust_region_step(gradient, hessian, radius):
-    """The step d (m,) maximising the model g . d + d' H d / 2 over |d| <= radius, for m = 1
-    or 2 (the tangent plane of the sphere in 2D or 3D), and the model's increase.
+    """The step d (m scalars) maximising the model g . d + d' H d / 2 over |d| <= radius, for
+    m = 1 or 2 (the tangent plane of the sphere in 2D or 3D), and the model's increase.
 
     Newton's step when H is negative definite and the step fits; otherwise the step on the
     boundary with (H - mu I) d = -g, mu >= max(0, largest eigenvalue), found by Newton's
     method on 1 / |d(mu)| - 1 / radius (Moré and Sorensen), with the eigenvector of the
     largest eigenvalue added where g has no part along it (the "hard case", as at a saddle
     between two corners touching, where the soft gap rises on both sides)."""
-    dtype = gradient.dtype
+    dtype = radius.dtype
     eps = jnp.finfo(dtype).eps
     tiny = jnp.finfo(dtype).tiny
-    if gradient.shape[0] == 1:
-        curvature, slope = hessian[0, 0], gradient[0]
+    if len(gradient) == 1:
+        curvature, slope = hessian[0][0], gradient[0]
         newton = -safe_divide(slope, curvature, curvature < 0)
         fits = (curvature < 0) & (jnp.abs(newton) <= radius)
         sense = jnp.where(slope < 0, -1.0, 1.0).astype(dtype)
-        step = jnp.where(fits, newton, sense * radius)[None]
-    else:
-        # Eigen-decomposition of the symmetric 2 x 2 Hessian: values low <= high.
-        half_trace = 0.5 * (hessian[0, 0] + hessian[1, 1])
-        half_gap = jnp.sqrt(0.25 * (hessian[0, 0] - hessian[1, 1]) ** 2 + hessian[0, 1] ** 2)
-        high = half_trace + half_gap
-        low = half_trace - half_gap
-        scale = jnp.max(jnp.abs(hessian)) + tiny
-        first, found = safe_normalize(jnp.stack([hessian[0, 1], high - hessian[0, 0]]),
-                                      (eps * scale) ** 2)
-        second, _ = safe_normalize(jnp.stack([high - hessian[1, 1], hessian[0, 1]]),
-                                   (eps * scale) ** 2)
-        top = jnp.where(found, first, second)
-        top = jnp.where(jnp.any(top != 0), top, jnp.array([1.0, 0.0], dtype))
-        bottom = jnp.stack([-top[1], top[0]])
-        along_top, along_bottom = dot(top, gradient), dot(bottom, gradient)
-        # d(mu) = g_top / (mu - high) top + g_bottom / (mu - low) bottom, for mu > high.
-        newton = -safe_divide(along_top, high, high < 0) * top - safe_divide(
-            along_bottom, low, low < 0) * bottom
-        fits = (high < 0) & (jnp.sqrt(dot(newton, newton)) <= radius)
-        floor = jnp.maximum(high, 0.0)
-        mu = floor + jnp.abs(along_top) / radius + eps * scale
-        for _ in range(4):
-            inverse_top = safe_divide(1.0, mu - high, mu > high)
-            inverse_bottom = safe_divide(1.0, mu - low, mu > low)
-            squared = along_top**2 * inverse_top**2 + along_bottom**2 * inverse_bottom**2
-            length = jnp.sqrt(squared + tiny)
-            # phi(mu) = 1/|d| - 1/radius is nearly linear in mu; phi' = (sum g_i^2 / (mu -
-            # l_i)^3) / |d|^3.
-            derivative = (along_top**2 * inverse_top**3 + along_bottom**2 * inverse_bottom**3
-                          ) / (length**3)
-            mu = jnp.maximum(mu - safe_divide(1.0 / length - 1.0 / radius, derivative,
-                                              derivative > 0), floor)
+        step = (jnp.where(fits, newton, sense * radius),)
+        return step, slope * step[0] + 0.5 * curvature * step[0] ** 2
+    (h00, h01), (_, h11) = hessian
+    # Eigen-decomposition of the symmetric 2 x 2 Hessian: values low <= high.
+    half_trace = 0.5 * (h00 + h11)
+    half_gap = jnp.sqrt(0.25 * (h00 - h11) ** 2 + h01**2)
+    high, low = half_trace + half_gap, half_trace - half_gap
+    scale = jnp.maximum(jnp.maximum(jnp.abs(h00), jnp.abs(h11)), jnp.abs(h01)) + tiny
+    first = (h01, high - h00)
+    second = (high - h11, h01)
+    first_squared, second_squared = kernels.vdot(first, first), kernels.vdot(second, second)
+    use_first = first_squared >= second_squared
+    chosen = kernels.vselect(use_first, first, second)
+    chosen_squared = jnp.where(use_first, first_squared, second_squared)
+    found = chosen_squared > (eps * scale) ** 2
+    norm = jax.lax.rsqrt(jnp.where(found, chosen_squared, 1.0))
+    top = (jnp.where(found, chosen[0] * norm, 1.0), jnp.where(found, chosen[1] * norm, 0.0))
+    bottom = (-top[1], top[0])
+    along_top, along_bottom = kernels.vdot(top, gradient), kernels.vdot(bottom, gradient)
+    # d(mu) = g_top / (mu - high) top + g_bottom / (mu - low) bottom, for mu > high.
+    newton_top = -safe_divide(along_top, high, high < 0)
+    newton_bottom = -safe_divide(along_bottom, low, low < 0)
+    fits = (high < 0) & (newton_top**2 + newton_bottom**2 <= radius**2)
+    floor = jnp.maximum(high, 0.0)
+    mu = floor + jnp.abs(along_top) / radius + eps * scale
+    for _ in range(4):
         inverse_top = safe_divide(1.0, mu - high, mu > high)
         inverse_bottom = safe_divide(1.0, mu - low, mu > low)
-        boundary = along_top * inverse_top * top + along_bottom * inverse_bottom * bottom
-        # Hard case: too short even as mu reaches the largest eigenvalue (g has (almost) no
-        # part along its eigenvector): add that eigenvector up to the boundary.
-        short = radius**2 - dot(boundary, boundary)
-        sense = jnp.where(along_top < 0, -1.0, 1.0).astype(dtype)
-        boundary = boundary + sense * jnp.sqrt(jnp.maximum(short, 0.0)) * top
-        step = jnp.where(fits, newton, boundary)
-    gain = dot(gradient, step) + 0.5 * dot(step, hessian @ step)
+        length = jnp.sqrt(along_top**2 * inverse_top**2 + along_bottom**2 * inverse_bottom**2
+                          + tiny)
+        # phi(mu) = 1/|d| - 1/radius is nearly linear in mu; phi' = (sum g_i^2 / (mu -
+        # l_i)^3) / |d|^3.
+        derivative = (along_top**2 * inverse_top**3 + along_bottom**2 * inverse_bottom**3
+                      ) / length**3
+        mu = jnp.maximum(mu - safe_divide(1.0 / length - 1.0 / radius, derivative,
+                                          derivative > 0), floor)
+    boundary_top = along_top * safe_divide(1.0, mu - high, mu > high)
+    boundary_bottom = along_bottom * safe_divide(1.0, mu - low, mu > low)
+    # Hard case: too short even as mu reaches the largest eigenvalue (g has (almost) no part
+    # along its eigenvector): add that eigenvector up to the boundary.
+    short = radius**2 - boundary_top**2 - boundary_bottom**2
+    sense = jnp.where(along_top < 0, -1.0, 1.0).astype(dtype)
+    boundary_top = boundary_top + sense * jnp.sqrt(jnp.maximum(short, 0.0))
+    step_top = jnp.where(fits, newton_top, boundary_top)
+    step_bottom = jnp.where(fits, newton_bottom, boundary_bottom)
+    step = kernels.vadd(kernels.vscale(step_top, top), kernels.vscale(step_bottom, bottom))
+    gain = (along_top * step_top + along_bottom * step_bottom
+            + 0.5 * (high * step_top**2 + low * step_bottom**2))
     return step, gain
-
-
-def _riemannian(axis, moments: _Moments, tau):
-    """(tangent basis (m, D), gradient (m,), Hessian (m, m)) of soft_gap on the sphere."""
-    basis = _tangent_basis(axis)
-    gradient = basis @ moments.gradient
-    # The Euclidean Hessian -spread / tau in the tangent plane, minus the normal derivative
-    # (u . gradient) times the identity (the sphere's curvature).
-    hessian = -(basis @ moments.spread @ basis.T) / tau - dot(axis, moments.gradient) * jnp.eye(
-        basis.shape[0], dtype=axis.dtype)
-    return basis, gradient, hessian
 
 
 def _search(frame: PairFrame, tau, start):
     """The axis maximising soft_gap, from `start` (values only): trust-region Newton steps on
     the sphere, each accepted only if soft_gap rises; the region grows when the model predicted
-    the rise well and shrinks when it did not."""
-    a, b_vertices = frame.a, frame.b_vertices
-    centres = _centres(frame)
-
-    def moments_at(axis):
-        return _moments_of(frame, axis, tau)
+    the rise well and shrinks when it did not. The loop carries the axis, the radius, the step
+    stretch and the axis's moments in one packed array (`_packed_moments`), and everything
+    between two packed moments is scalar arithmetic, so a step is a few passes over a batch."""
+    summary = _summary(frame)
+    extent = jnp.max(jnp.abs(summary.points))
+    rounding = 16 * jnp.finfo(frame.dtype).eps * (extent + jnp.max(jnp.abs(summary.offsets)))
+    eps = jnp.finfo(frame.dtype).eps
 
     def step(_, state):
-        axis, moments, radius, boost = state
+        axis, packed, radius, boost = state
+        axis = kernels.as_vec(axis)
+        moments = _unpack(summary, packed)
         basis, gradient, hessian = _riemannian(axis, moments, tau)
         move, predicted = _trust_region_step(gradient, hessian, radius)
         # On an exponential tail of the soft extremes (far from the maximum across a range of
         # equally good axes) Newton's step is only about tau / extent and the rise exceeds
         # the model's: there the step is stretched by `boost`, doubled after each success.
-        length = jnp.sqrt(dot(move, move))
-        stretched = jnp.minimum(boost * length, _MAX_RADIUS)
-        move = move * safe_divide(stretched, length, length > 0)
-        trial = safe_normalize(axis + move @ basis, 0.0)[0]
-        trial_moments = moments_at(trial)
+        length = jnp.sqrt(kernels.vdot(move, move))
+        stretch = safe_divide(jnp.minimum(boost * length, _MAX_RADIUS), length, length > 0)
+        moved = kernels.vadd(axis, kernels.vsum([kernels.vscale(stretch * m, e)
+                                                 for m, e in zip(move, basis, strict=True)]))
+        trial = kernels.vscale(jax.lax.rsqrt(kernels.vdot(moved, moved)), moved)
+        # Stored once (rule 5 of `_kernels`): the trial's moments, and the decisions, read by
+        # every output below.
+        trial = kernels.materialize(trial)
+        trial_packed = _packed_moments(summary, trial, tau)
+        trial_moments = _unpack(summary, trial_packed)
         rise = trial_moments.value - moments.value
         ratio = safe_divide(rise, predicted, predicted > 0)
         plain = boost == 1.0
-        radius = jnp.where(~plain, radius,
-                           jnp.where(ratio < 0.25, 0.25 * length,
-                                     jnp.where((ratio > 0.75) & (length > 0.99 * radius),
-                                               2.0 * radius, radius)))
-        radius = jnp.clip(radius, 16 * jnp.finfo(axis.dtype).eps, _MAX_RADIUS)
         # Near the maximum the rise (about g^2 / |H|) drops below the value's rounding before
         # the gradient g is small: there, a step that shrinks the gradient is taken too.
-        steeper = dot(gradient, gradient) <= dot(*(_riemannian(trial, trial_moments,
-                                                               tau)[1],) * 2)
+        trial_gradient = _riemannian(trial, trial_moments, tau)[1]
+        steeper = kernels.vdot(gradient, gradient) <= kernels.vdot(trial_gradient, trial_gradient)
         better = (rise > 0) | ((rise >= -rounding) & ~steeper)
         tail = plain & (ratio > 1.1) & (length < 0.99 * radius)
-        boost = jnp.where(better & (tail | ~plain), jnp.minimum(2.0 * boost, 64.0), 1.0)
-        keep = lambda new, old: jnp.where(better, new, old)  # noqa: E731
-        return (keep(trial, axis), jax.tree.map(keep, trial_moments, moments), radius,
-                boost.astype(radius.dtype))
+        shrink = plain & (ratio < 0.25)
+        grow = plain & (ratio > 0.75) & (length > 0.99 * radius)
+        code = kernels.materialize(better.astype(jnp.int32) + 2 * (better & (tail | ~plain))
+                             + 4 * shrink + 8 * grow)
+        better, stretch_more = code % 2 == 1, (code // 2) % 2 == 1
+        shrink, grow = (code // 4) % 2 == 1, (code // 8) % 2 == 1
+        radius = jnp.where(shrink, 0.25 * length, jnp.where(grow, 2.0 * radius, radius))
+        radius = jnp.clip(radius, 16 * eps, _MAX_RADIUS)
+        boost = jnp.where(stretch_more, jnp.minimum(2.0 * boost, 64.0), 1.0)
+        return (jnp.where(better, jnp.stack(trial), jnp.stack(axis)),
+                jnp.where(better, trial_packed, packed), radius, boost.astype(radius.dtype))
 
-    extent = jnp.max(jnp.abs(a.vertices)) + jnp.max(jnp.abs(b_vertices - centres[1]))
-    rounding = 16 * jnp.finfo(frame.dtype).eps * (extent + jnp.max(jnp.abs(b_vertices)))
     radius = jnp.minimum(_FIRST_RADIUS * tau / extent, _MAX_RADIUS)
-    state = (start, moments_at(start), radius, jnp.ones((), frame.dtype))
+    state = (start, _packed_moments(summary, kernels.as_vec(start), tau), radius,
+             jnp.ones((), frame.dtype))
     return jax.lax.fori_loop(0, NEWTON_STEPS, step, state)[0]
 
 
 def soft_gap(frame: PairFrame, axis, tau):
     """soft_gap(axis) for a prepared pair (differentiable in the frame)."""
-    soft_a, _ = _soft_max(dot(frame.a.vertices, axis), frame.a.vertex_mask, tau)
-    soft_b, _ = _soft_max(-dot(frame.b_vertices, axis), frame.b.vertex_mask, tau)
+    soft_a = _soft_max(dot(frame.a.vertices, axis), frame.a.vertex_mask, tau)
+    soft_b = _soft_max(-dot(frame.b_vertices, axis), frame.b.vertex_mask, tau)
     return -soft_b - soft_a
-
-
-def _centres(frame: PairFrame):
-    return frame.a.vertices[0], frame.b_vertices[0]
-
-
-def _moments_of(frame: PairFrame, axis, tau) -> _Moments:
-    return _moments(axis, frame.a.vertices, frame.a.vertex_mask, frame.b_vertices,
-                    frame.b.vertex_mask, tau, _centres(frame))
 
 
 @jax.custom_jvp
 def _maximiser(frame: PairFrame, tau):
     """The unit axis (a's frame) maximising soft_gap: the better of the searches from two
     starts. The first is the exact maximiser, so that the result is within the bound. The
-    second is the SAT candidate with the largest soft_gap more than a few tau / extent
-    radians from the first (nearer ones share its basin): where penetration directions
-    compete, the local maximum near the best other one is found too, and taking the larger
-    keeps the value continuous when they swap."""
+    second is the best SAT candidate more than a few tau / extent radians from the first
+    (nearer ones share its basin): where two penetration directions tie, the local maximum
+    near each is found, and taking the larger keeps the value continuous when they swap."""
     frozen, tau = jax.lax.stop_gradient((frame, tau))
-    first = exact_distance(frozen).axis
-    candidates, valid = sat_candidates(frozen)
     extent = jnp.max(jnp.abs(frozen.a.vertices)) + jnp.max(jnp.abs(frozen.b_vertices))
     apart = jnp.clip(_SECOND_START_ANGLE * tau / extent, 1e-3, 0.5)
-    screened = jax.vmap(soft_gap, in_axes=(None, 0, None))(frozen, candidates, tau)
-    screened = jnp.where(valid & (candidates @ first < jnp.cos(apart)), screened, -jnp.inf)
-    best = jnp.argmax(screened)
-    second = jnp.where(jnp.isfinite(screened[best]), candidates[best], first)
-    axes = jax.vmap(_search, in_axes=(None, None, 0))(frozen, tau, jnp.stack([first, second]))
+    starts = jnp.stack([exact_distance(frozen).axis, sat_runner_up(frozen, apart)])
+    axes = jax.vmap(_search, in_axes=(None, None, 0))(frozen, tau, starts)
     values = jax.vmap(soft_gap, in_axes=(None, 0, None))(frozen, axes, tau)
     return jnp.where(values[1] > values[0], axes[1], axes[0])
 
@@ -277,17 +334,23 @@ def _maximiser_jvp(primals, tangents):
     Only second and higher derivatives of the smooth value reach this rule."""
     frame, tau = primals
     axis = _maximiser(frame, tau)
-    basis, _, hessian = _riemannian(axis, _moments_of(frame, axis, tau), tau)
-    _, moved = jax.jvp(lambda f, t: _moments_of(f, axis, t).gradient, primals, tangents)
-    right = -(basis @ moved)
-    if basis.shape[0] == 1:
-        step = safe_divide(right, hessian[0, 0], hessian[0, 0] != 0)
+
+    def moments(frame, tau):
+        summary = _summary(frame)
+        return _unpack(summary, _packed_moments(summary, kernels.as_vec(axis), tau))
+
+    basis, _, hessian = _riemannian(kernels.as_vec(axis), moments(frame, tau), tau)
+    _, moved = jax.jvp(lambda f, t: moments(f, t).gradient, primals, tangents)
+    right = [-kernels.vdot(e, moved) for e in basis]
+    if len(basis) == 1:
+        step = [safe_divide(right[0], hessian[0][0], hessian[0][0] != 0)]
     else:
-        determinant = hessian[0, 0] * hessian[1, 1] - hessian[0, 1] ** 2
-        inverse = jnp.stack([jnp.stack([hessian[1, 1], -hessian[0, 1]]),
-                             jnp.stack([-hessian[0, 1], hessian[0, 0]])])
-        step = safe_divide(inverse @ right, determinant, determinant != 0)
-    return axis, step @ basis
+        (h00, h01), (_, h11) = hessian
+        determinant = h00 * h11 - h01**2
+        step = [safe_divide(h11 * right[0] - h01 * right[1], determinant, determinant != 0),
+                safe_divide(h00 * right[1] - h01 * right[0], determinant, determinant != 0)]
+    return axis, jnp.stack(kernels.vsum([kernels.vscale(d, e)
+                                         for d, e in zip(step, basis, strict=True)]))
 
 
 @jax.custom_jvp
