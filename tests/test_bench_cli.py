@@ -137,3 +137,22 @@ def test_roofline_reports_costs_ceilings_and_rates(roofline, capsys):
     # A 3D box pair costs more operations than a pair of 3-4-gons.
     assert float(rows["3d-boxes"][2]) > float(rows["2d-small"][2])
 
+
+
+def test_distance_benchmark_reports_ratios_and_unit_gradients(monkeypatch, tmp_path):
+    """benchmarks/distance.py on 2D polygons at 1e3 pairs: it writes its JSON and table, the
+    distance kernels cost at least penetration's, and their translation gradients have norm
+    at most 1 (the signed distance is 1-Lipschitz in translation)."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    import distance
+
+    prefix = tmp_path / "distance"
+    assert distance.main(["--quick", "--cases", "2d-polygons", "--output", str(prefix)]) == 0
+    record = json.loads(prefix.with_suffix(".json").read_text())
+    (row,) = record["rows"]
+    assert row["case"] == "2d-polygons" and row["pairs"] == 1000
+    for kind in ("exact", "smooth"):
+        assert row[kind]["ratio"] > 1.0
+        assert 0.99 < row[kind]["max_translation_gradient"] <= 1.0 + 1e-5
+    assert set(record["eager"]["2d-polygons"]) >= {"penetration", "signed_distance"}
+    assert "x penetration" in prefix.with_suffix(".md").read_text()
