@@ -34,11 +34,12 @@ import jax
 import jax.numpy as jnp
 
 from jaxsat._gjk import closest_point_gjk
-from jaxsat._kernels import dot, safe_normalize
+from jaxsat._kernels import as_vecs, dot, safe_normalize, take_vec, vscale, vsum
 from jaxsat._narrowphase import sat_search
 from jaxsat._pair import PairFrame
 
-__all__ = ["ExactDistance", "exact_distance", "signed_distance_of_witnesses", "support_gap"]
+__all__ = ["ExactDistance", "exact_distance", "signed_distance_of_witnesses", "support_gap",
+           "witness"]
 
 GJK_TOLERANCE = 4
 """GJK stops once the distance is known to within this many ulps of the pair's extent."""
@@ -65,6 +66,14 @@ class ExactDistance(NamedTuple):
     q - p = distance * axis (up to GJK's tolerance)."""
 
 
+def witness(weights, vertices, indices):
+    """(D,) sum over slots of weights[s] * vertices[indices[s]], in component form with the
+    rows picked by select chains (`_kernels.take_vec`), not a gather and a matrix product."""
+    points = as_vecs(vertices)
+    return jnp.stack(vsum([vscale(weights[s], take_vec(points, indices[s]))
+                           for s in range(weights.shape[0])]))
+
+
 def support_gap(axis, a_vertices, b_vertices):
     """gap(axis) = min over b of axis . b - max over a of axis . a (padding rows repeat a
     real row, so they change neither extreme)."""
@@ -82,8 +91,8 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     extent = jnp.max(jnp.abs(a_vertices)) + jnp.max(jnp.abs(moved_b))
     simplex = closest_point_gjk(a_vertices, moved_b, sat.axis, GJK_TOLERANCE * eps * extent,
                                 GJK_MAX_ITERATIONS)
-    witness_a = simplex.weights @ a_vertices[simplex.index_a]
-    witness_b = simplex.weights @ moved_b[simplex.index_b]
+    witness_a = witness(simplex.weights, a_vertices, simplex.index_a)
+    witness_b = witness(simplex.weights, moved_b, simplex.index_b)
     gjk_axis, found = safe_normalize(witness_b - witness_a, 0.0)
     gjk_axis = jnp.where(found, gjk_axis, sat.axis)
     sat_gap, gjk_gap = -sat.depth, support_gap(gjk_axis, a_vertices, b_vertices)
@@ -97,7 +106,7 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
 def signed_distance_of_witnesses(frame: PairFrame, found: ExactDistance):
     """found.distance, differentiable in the frame: the value of axis . (q - p) with the axis
     and the witness weights held fixed (the envelope theorem), straight through."""
-    witness_a = found.weights @ frame.a.vertices[found.index_a]
-    witness_b = found.weights @ frame.b_vertices[found.index_b]
+    witness_a = witness(found.weights, frame.a.vertices, found.index_a)
+    witness_b = witness(found.weights, frame.b_vertices, found.index_b)
     gap = dot(found.axis, witness_b - witness_a)
     return found.distance + (gap - jax.lax.stop_gradient(gap))

@@ -12,7 +12,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from jaxsat._closest import exact_distance, signed_distance_of_witnesses
+from jaxsat._closest import exact_distance, signed_distance_of_witnesses, witness
 from jaxsat._kernels import rotate
 from jaxsat._pair import check_pair, compiled_query, pair_frame
 from jaxsat._poses import Pose
@@ -107,7 +107,7 @@ def closest_points(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> Clos
     """
     frame = jax.lax.stop_gradient(pair_frame(a, pose_a, b, pose_b))
     found = exact_distance(frame)
-    point_a = found.weights @ frame.a.vertices[found.index_a]
+    point_a = witness(found.weights, frame.a.vertices, found.index_a)
     point_b = point_a + found.distance * found.axis
     return ClosestPoints(signed_distance=found.distance, point_a=frame.to_world(point_a),
                          point_b=frame.to_world(point_b),

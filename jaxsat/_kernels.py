@@ -3,8 +3,8 @@
 Every query is written for one pair and batched with `jax.vmap`, so each array here is tiny
 (a few vertices, D = 2 or 3 coordinates) and gains a long leading batch axis. What is fast
 then is decided by how XLA's CPU backend fuses the batched program, which gives the rules
-below. Each was measured on the kernels (benchmarks/README.md, "Performance to the limit");
-breaking one typically costs 2x.
+below. Each was measured on the kernels (benchmarks/README.md, "Performance to the limit"
+and "Distance"); breaking one typically costs 2x or more.
 
 1. **Component form.** Write small products out as sums over the D coordinates
    (`project`, `rotate`, `dot`, `cross`) instead of `@`, `jnp.dot`, `jnp.einsum` or
@@ -23,9 +23,18 @@ breaking one typically costs 2x.
    branch of `jnp.where` is still differentiated: `jnp.where(ok, x / y, 0)` has a NaN
    gradient where y = 0. The safe functions here replace the bad input first
    (`jnp.where(ok, y, 1)`) and say which NaN they prevent.
-5. **Materialise values with many broadcast consumers.** XLA fuses a cheap elementwise
-   producer into each consumer and so recomputes it per consumer element; `materialize`
-   stores it once (optimisation barriers are dropped before fusion on CPU, so they cannot).
+5. **Materialise values with many consumers.** XLA's CPU backend does not fuse one
+   computation into several outputs: a value feeding several stored results (the outputs of a
+   loop step, the weights of a simplex) is recomputed inside each of them, and a cheap
+   elementwise producer is recomputed per consumer element. `materialize` stores it once
+   (optimisation barriers are dropped before fusion on CPU, so they cannot). End an
+   expensive stage in one stored value (an index, a code packing several decisions, one
+   reduction's array) and derive the outputs from it cheaply.
+6. **Count the passes.** Every fusion is a pass over the whole batch, and XLA keeps an
+   expensive operation (divide, square root, exponential) that has several users in a pass of
+   its own rather than repeat it; a loop step of scalar algebra can so become 100 passes.
+   Iterative per-pair code is written in scalar form (`Vec`), so that everything between two
+   stored values fuses, and its loop state is kept to a few arrays.
 
 Nothing here imports from the rest of the package: the pair frame (`_pair`) and every query
 module stand on this one.
