@@ -214,7 +214,16 @@ def sat_search(frame: PairFrame, prune: bool = True) -> SatAxis:
     groups = _candidate_groups(frame, prune)
     depth, axis = _best_axis(groups)
     if len(groups) > 1:
-        depth = _support(axis, frame.a.vertices) - -_support(-axis, frame.b_vertices)
+        # Both senses, as the projected groups measure them: the Gauss-map sense comes from
+        # the sign of a dot product that vanishes where edges meet at a vertex, and XLA may
+        # round it differently in `_gauss_map_axis` than in the depth (it did for batches
+        # over about 1,400 pairs), which turned the axis around and gave the depth
+        # s(-u) = width + gap instead of s(u).
+        along = _support(axis, frame.a.vertices) + _support(-axis, frame.b_vertices)
+        against = _support(-axis, frame.a.vertices) + _support(axis, frame.b_vertices)
+        turned = against < along
+        depth = jnp.where(turned, against, along)
+        axis = jnp.where(turned, -axis, axis)
     return SatAxis(depth, axis)
 
 

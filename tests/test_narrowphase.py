@@ -1022,3 +1022,27 @@ def test_jitted_batched_depth_gradient_is_minus_normal_at_face_ties(dim):
     gradients = jax.jit(jax.vmap(jax.grad(depth, argnums=4)))(*args)
     hits = jax.vmap(lambda *x: jaxsat.penetration(*x[:3], jaxsat.Pose(x[4], x[3])))(*args)
     np.testing.assert_allclose(gradients, -hits.normal, atol=1e-9)
+
+
+def test_large_batch_keeps_gauss_map_axis_sense_at_vertex_vertex_contact():
+    """Regression: two octahedra 5e-8 apart tip to tip, in float64. For batches of more than
+    about 1,400 pairs XLA rounded the sign of the Gauss-map winner's orientation (a dot
+    product that vanishes there) differently than in its depth, and `penetration` returned
+    the axis turned round with depth 2.31 (width + gap) instead of -5e-8."""
+    octahedron = np.concatenate([np.eye(3), -np.eye(3)])
+    shape = jaxsat.polyhedron(octahedron, max_vertices=8)
+    params_a = np.float32([1.61529267, 0.92735612, -0.95081633,
+                           0.76852161, 0.56748998, 0.27642649, -0.10448954]).astype(np.float64)
+    params_b = np.float32([3.26597381, 1.23362327, -2.0377624,
+                           0.76852161, 0.56748998, 0.27642649, -0.10448954]).astype(np.float64)
+    truth = oracle.evaluate(*(oracle.to_world(octahedron, oracle.rotation_3d(p[3:]), p[:3])
+                              for p in (params_a, params_b)))
+    assert -1e-7 < truth.depth < 0
+    count = 2048
+    batch = jax.tree.map(lambda leaf: jnp.repeat(leaf[None], count, axis=0), shape)
+    pose_a, pose_b = (jax.vmap(jaxsat.pose3)(jnp.repeat(jnp.asarray(p[None, :3]), count, 0),
+                                             jnp.repeat(jnp.asarray(p[None, 3:]), count, 0))
+                      for p in (params_a, params_b))
+    found = jax.jit(jax.vmap(jaxsat.penetration))(batch, pose_a, batch, pose_b)
+    np.testing.assert_allclose(found.depth, truth.depth, rtol=0, atol=1e-12)
+    assert np.all(np.asarray(found.normal) @ truth.normal > 1 - 1e-9)
