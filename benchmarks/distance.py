@@ -151,7 +151,8 @@ def markdown(rows: list[dict], eager: dict, info: dict) -> str:
             f"{smooth['ratio']:.2f}x ({TARGETS['smooth'][case]}x, "
             f"{mark(smooth['ratio'], 'smooth')}) | {pen['compile_s']:.1f} / "
             f"{exact['compile_s']:.1f} / {smooth['compile_s']:.1f} | "
-            f"{exact['bytes'] / 2**20:.0f} ({exact['temp_bytes'] / 2**20:.0f}) | {exact['max_translation_gradient']:.6f} / "
+            f"{exact['bytes'] / 2**20:.0f} ({exact['temp_bytes'] / 2**20:.0f}) | "
+            f"{exact['max_translation_gradient']:.6f} / "
             f"{smooth['max_translation_gradient']:.6f} |")
     lines += ["", "Eager calls of the public queries on one pair (first call compiles; warm: "
               "best of 20).", "",
