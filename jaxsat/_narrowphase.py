@@ -181,19 +181,23 @@ def _winner(depths: jax.Array) -> tuple[jax.Array, jax.Array]:
     return row_minima[row], row * depths.shape[1] + jnp.argmin(depths[row])
 
 
+def _smallest(candidates):
+    """(depth, axis) of the smallest depth among (depth, axis) pairs, the first at ties."""
+    best_depth, best_axis = candidates[0]
+    for depth, axis in candidates[1:]:
+        better = depth < best_depth
+        best_depth = jnp.where(better, depth, best_depth)
+        best_axis = jnp.where(better, axis, best_axis)
+    return best_depth, best_axis
+
+
 def _best_axis(groups):
     """The smallest depth over all groups and its unit axis (in a's frame)."""
-    best_depth, best_axis = None, None
+    candidates = []
     for depths, axis_of, _ in groups:
         depth, index = _winner(depths)
-        axis = axis_of(index)
-        if best_depth is None:
-            best_depth, best_axis = depth, axis
-        else:
-            better = depth < best_depth
-            best_depth = jnp.where(better, depth, best_depth)
-            best_axis = jnp.where(better, axis, best_axis)
-    return best_depth, best_axis
+        candidates.append((depth, axis_of(index)))
+    return _smallest(candidates)
 
 
 class SatAxis(NamedTuple):
@@ -236,7 +240,7 @@ def sat_runner_up(frame: PairFrame, min_angle) -> jax.Array:
     groups = _candidate_groups(frame)
     _, winner = _best_axis(groups)
     min_cosine = jnp.cos(min_angle)
-    best_depth, best_axis = None, None
+    candidates = []
     for depths, axis_of, cosine_to in groups:
         if cosine_to is not None:
             depths = jnp.where(cosine_to(winner) >= min_cosine, jnp.inf, depths)
@@ -244,12 +248,8 @@ def sat_runner_up(frame: PairFrame, min_angle) -> jax.Array:
         axis = axis_of(index)
         if cosine_to is None:
             depth = jnp.where(dot(axis, winner) >= min_cosine, jnp.inf, depth)
-        if best_depth is None:
-            best_depth, best_axis = depth, axis
-        else:
-            better = depth < best_depth
-            best_depth = jnp.where(better, depth, best_depth)
-            best_axis = jnp.where(better, axis, best_axis)
+        candidates.append((depth, axis))
+    best_depth, best_axis = _smallest(candidates)
     return jnp.where(jnp.isfinite(best_depth), best_axis, winner)
 
 
