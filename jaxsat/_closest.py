@@ -8,14 +8,16 @@ lower bound of it. Two searches find a maximiser:
 * the SAT (`_narrowphase.sat_search`) gives the penetration depth and axis, a maximiser
   whenever the shapes overlap or touch, and when the closest features are a vertex and a face
   or two crossing edges;
-* GJK (`_gjk`) finds the closest points of the shapes with b moved out along the SAT axis by
-  the penetration depth (by nothing when they are apart): the closest points when apart, the
-  touching points after the minimum translation when they overlap. Their direction is the
-  maximiser when apart.
+* a closest-pair search on the shapes with b moved out along the SAT axis by the penetration
+  depth (by nothing when they are apart) gives the closest points when apart and the touching
+  points after the minimum translation when they overlap. Their direction is the maximiser
+  when apart. In 3D the search is GJK (`_gjk`). In 2D it is closed form
+  (`closest_pair_of_support_faces`): the closest points lie on the two shapes' support
+  faces along the SAT axis.
 
-So sd = max(gap(SAT axis), gap(GJK axis)), with no case split and no tolerance: an axis that
-is not the maximiser only gives a smaller lower bound. GJK reports its points as weights on
-a's and b's vertices, which the gradient needs.
+So sd = max(gap(SAT axis), gap(witness axis)), with no case split and no tolerance: an axis
+that is not the maximiser only gives a smaller lower bound. Both searches report their points
+as weights on a's and b's vertices, which the gradient needs.
 
 Gradients follow the envelope theorem for sd = max over u of min over p in A, q in B of
 u.(q - p): with the points written as fixed weights on the vertices, the derivative is that of
@@ -33,16 +35,18 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxsat._gjk import closest_point_gjk
+from jaxsat import _kernels as k
+from jaxsat._gjk import Simplex, closest_point_gjk
 from jaxsat._kernels import as_vecs, dot, safe_normalize, take_vec, vscale, vsum
 from jaxsat._narrowphase import sat_search
 from jaxsat._pair import PairFrame
 
-__all__ = ["ExactDistance", "exact_distance", "signed_distance_of_witnesses", "support_gap",
-           "witness"]
+__all__ = ["ExactDistance", "closest_pair_of_support_faces", "exact_distance",
+           "signed_distance_of_witnesses", "support_gap", "witness"]
 
 GJK_TOLERANCE = 4
-"""GJK stops once the distance is known to within this many ulps of the pair's extent."""
+"""GJK stops once the distance is known to within this many ulps of the pair's extent, and
+gaps that close are ties."""
 
 GJK_MAX_ITERATIONS = 32
 """A cap well above the most steps seen (10, on 20-vertex hulls): under `vmap` every pair
@@ -88,25 +92,121 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     shift = jnp.maximum(sat.depth, 0.0) * sat.axis
     moved_b = b_vertices + shift
     eps = jnp.finfo(frame.dtype).eps
-    extent = jnp.max(jnp.abs(a_vertices)) + jnp.max(jnp.abs(moved_b))
-    simplex = closest_point_gjk(a_vertices, moved_b, sat.axis, GJK_TOLERANCE * eps * extent,
-                                GJK_MAX_ITERATIONS)
+    rounding = GJK_TOLERANCE * eps * (jnp.max(jnp.abs(a_vertices)) + jnp.max(jnp.abs(moved_b)))
+    if frame.dim == 2:
+        simplex = closest_pair_of_support_faces(a_vertices, jnp.sum(frame.a.vertex_mask),
+                                                moved_b, jnp.sum(frame.b.vertex_mask), sat.axis)
+    else:
+        simplex = closest_point_gjk(a_vertices, moved_b, sat.axis, rounding, GJK_MAX_ITERATIONS)
     witness_a = witness(simplex.weights, a_vertices, simplex.index_a)
     witness_b = witness(simplex.weights, moved_b, simplex.index_b)
-    gjk_axis, found = safe_normalize(witness_b - witness_a, 0.0)
-    gjk_axis = jnp.where(found, gjk_axis, sat.axis)
-    sat_gap, gjk_gap = -sat.depth, support_gap(gjk_axis, a_vertices, b_vertices)
-    use_gjk = gjk_gap > sat_gap
-    return ExactDistance(distance=jnp.where(use_gjk, gjk_gap, sat_gap),
-                         axis=jnp.where(use_gjk, gjk_axis, sat.axis),
+    witness_axis, found = safe_normalize(witness_b - witness_a, 0.0)
+    witness_axis = jnp.where(found, witness_axis, sat.axis)
+    sat_gap, witness_gap = -sat.depth, support_gap(witness_axis, a_vertices, b_vertices)
+    # Apart, at a near-tie (a closest-feature switch) the gap is flat in the axis, so a gap
+    # within rounding of the best can come from an axis sqrt(rounding) off: prefer the
+    # witness axis there, whose direction is accurate to rounding (the gradient uses it).
+    use_gjk = witness_gap > sat_gap - jnp.where(sat.depth < 0, rounding, 0.0)
+    return ExactDistance(distance=jnp.where(use_gjk, witness_gap, sat_gap),
+                         axis=jnp.where(use_gjk, witness_axis, sat.axis),
                          index_a=simplex.index_a, index_b=simplex.index_b,
                          weights=simplex.weights)
 
 
 def signed_distance_of_witnesses(frame: PairFrame, found: ExactDistance):
     """found.distance, differentiable in the frame: the value of axis . (q - p) with the axis
-    and the witness weights held fixed (the envelope theorem), straight through."""
+    and the witness weights held fixed (the envelope theorem), straight through.
+
+    q is formed in b's own frame and then moved into a's, so that the derivative flows back
+    through one point rather than through all of b's moved vertices (the same value: the map
+    is affine). `found` is stored once (`_kernels` rule 5): it feeds the value and every
+    gradient."""
+    found = k.materialize(found)
     witness_a = witness(found.weights, frame.a.vertices, found.index_a)
-    witness_b = witness(found.weights, frame.b_vertices, found.index_b)
+    witness_b = (k.rotate(frame.rotation, witness(found.weights, frame.b.vertices, found.index_b))
+                 + frame.translation)
     gap = dot(found.axis, witness_b - witness_a)
     return found.distance + (gap - jax.lax.stop_gradient(gap))
+
+
+def _ring_neighbours(index, count):
+    """(previous, next) vertex of a polygon ring of `count` real vertices (padding rows come
+    after them, so the ring closes at count - 1, not at the padded end)."""
+    previous = jnp.where(index == 0, count - 1, index - 1)
+    following = jnp.where(index + 1 >= count, 0, index + 1)
+    return previous, following
+
+
+def closest_pair_of_support_faces(a_vertices, a_count, b_vertices, b_count, axis) -> Simplex:
+    """The closest points of two convex polygons, given the SAT axis: exact when they are apart
+    or touching, in a fixed handful of operations (no iteration).
+
+    Why it suffices: with the origin outside M = B - A, gap(u) = min over m in M of u . m is
+    positively homogeneous and concave, so on the circle its superlevel sets above 0 are arcs
+    and it is unimodal there. Between two consecutive edge normals of M, gap is |m_k| cos(theta
+    - phi_k) for one vertex m_k of M. The SAT axis is the edge normal with the largest gap, so
+    the maximiser lies on that edge of M or at one of its two end vertices: the closest points
+    are on a's support face along the axis (a vertex or an edge) and b's support face along
+    minus the axis. Each face lies within one ring step of the first support vertex, so the
+    search measures every vertex of those three-vertex windows against every edge of the
+    other window (12 point-segment distances). Pairs outside the support faces are real
+    point pairs too, so they are never closer than the true closest pair and cannot win.
+
+    Args:
+      a_vertices, b_vertices: (V_a, 2), (V_b, 2) polygon rings (either winding; padding rows
+        repeat row 0), one frame.
+      a_count, b_count: () int, the real vertex counts.
+      axis: (2,) unit SAT axis from a towards b.
+
+    Returns:
+      A Simplex in GJK's form (slots: the point, then the segment's ends as weights 1 - t
+      and t; the third slot is unused), iterations 0.
+    """
+    dtype = a_vertices.dtype
+    direction = k.as_vec(axis)
+    windows = []
+    for points, count, sense in ((k.as_vecs(a_vertices), a_count, direction),
+                                 (k.as_vecs(b_vertices), b_count, k.vscale(-1.0, direction))):
+        centre = k.support_index(sense, points)
+        previous, following = _ring_neighbours(centre, count)
+        indices = (previous, centre, following)
+        windows.append((indices, [take_vec(points, index) for index in indices]))
+    (indices_a, points_a), (indices_b, points_b) = windows
+    candidates = []  # (side, edge start, point): side 0 puts a's points on b's edges
+    best_squared = best_t = best_code = None
+    for side, (points, ring) in enumerate(((points_a, points_b), (points_b, points_a))):
+        for edge in range(2):
+            start = ring[edge]
+            along = k.vsub(ring[edge + 1], start)
+            squared_length = k.vdot(along, along)
+            inverse = k.safe_divide(1.0, squared_length, squared_length > 0)
+            for point in range(3):
+                offset = k.vsub(points[point], start)
+                t = jnp.clip(k.vdot(offset, along) * inverse, 0.0, 1.0)
+                miss = k.vsub(offset, k.vscale(t, along))
+                squared = k.vdot(miss, miss)
+                if best_squared is None:
+                    best_squared, best_t, best_code = squared, t, jnp.zeros((), jnp.int32)
+                else:
+                    better = squared < best_squared
+                    best_squared = jnp.where(better, squared, best_squared)
+                    best_t = jnp.where(better, t, best_t)
+                    best_code = jnp.where(better, len(candidates), best_code)
+                candidates.append((side, edge, point))
+    best_code, best_t = k.materialize((best_code, best_t))
+
+    def chosen(values):
+        picked = values[0]
+        for code in range(1, len(values)):
+            picked = jnp.where(best_code == code, values[code], picked)
+        return picked
+
+    slots_a, slots_b = [], []
+    for side, edge, point in candidates:
+        point_slots, edge_slots = (point, point, point), (edge, edge + 1, edge)
+        slots_a.append(edge_slots if side else point_slots)
+        slots_b.append(point_slots if side else edge_slots)
+    index_a = jnp.stack([chosen([indices_a[slots[s]] for slots in slots_a]) for s in range(3)])
+    index_b = jnp.stack([chosen([indices_b[slots[s]] for slots in slots_b]) for s in range(3)])
+    weights = jnp.stack([1.0 - best_t, best_t, jnp.zeros((), dtype)])
+    return Simplex(index_a, index_b, weights, jnp.zeros((), jnp.int32))

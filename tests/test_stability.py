@@ -555,6 +555,14 @@ def smooth_finite_differences(name: str, relative: float = 1e-6):
     return _central(values[:-1], steps, actual), forward, backward
 
 
+def _between_one_sided(gradient: np.ndarray, name: str) -> bool:
+    _, forward, backward = smooth_finite_differences(name)
+    used = np.isfinite(forward)
+    slack = 1e-4 * max(np.max(np.abs(gradient[used])), 1.0)
+    return bool(np.all(gradient[used] <= forward[used] + slack)
+                and np.all(gradient[used] >= backward[used] - slack))
+
+
 def check_between_one_sided(gradient: np.ndarray, name: str, label: str):
     """At a kink the smooth value is a maximum over branches, so along every coordinate its
     gradient (one branch's) lies between the backward and the forward difference."""
@@ -683,7 +691,16 @@ def test_catalogue_float32_matches_float64(name):
         value32, value64 = getattr(f32, part)["value"], getattr(f64, part)["value"]
         assert abs(value32 - value64) <= tolerance, f"{part}: {value32!r} vs {value64!r}"
     if name in KINKS:
-        check_between_one_sided(flat_gradient(f32.smooth), name, f"{name} float32")
+        gradient = flat_gradient(f32.smooth)
+        if name.startswith("identical-"):
+            # Identical shapes at identical poses tie exactly between u and -u, which the
+            # searches tell apart by rounding alone: float32 may take the other branch, whose
+            # gradient is this one with the roles of a and b swapped.
+            swapped = np.concatenate([np.ravel(g) for g in (*f32.smooth["grad"][1::-1],
+                                                            *f32.smooth["grad"][:1:-1])])
+            if _between_one_sided(swapped, name):
+                gradient = swapped
+        check_between_one_sided(gradient, name, f"{name} float32")
         return
     for group, g32, g64 in zip(GROUPS, f32.smooth["grad"], f64.smooth["grad"], strict=True):
         scale = max(np.max(np.abs(g64)), 1.0)
