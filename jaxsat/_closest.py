@@ -209,4 +209,5 @@ def closest_pair_of_support_faces(a_vertices, a_count, b_vertices, b_count, axis
     index_a = jnp.stack([chosen([indices_a[slots[s]] for slots in slots_a]) for s in range(3)])
     index_b = jnp.stack([chosen([indices_b[slots[s]] for slots in slots_b]) for s in range(3)])
     weights = jnp.stack([1.0 - best_t, best_t, jnp.zeros((), dtype)])
+    index_a, index_b, weights = k.materialize((index_a, index_b, weights))
     return Simplex(index_a, index_b, weights, jnp.zeros((), jnp.int32))

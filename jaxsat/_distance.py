@@ -1,8 +1,8 @@
 """Public distance queries: `signed_distance` (exact or smooth) and `closest_points`.
 
-The exact search is `_closest` (SAT and GJK), the smooth one `_smoothing`; this module checks
-the inputs, picks the path (statically: a concrete smoothing of 0 is exact) and runs it
-compiled (see `_pair.compiled_query`).
+The exact search is `_closest` (the SAT, then GJK in 3D or the support faces in 2D), the
+smooth one `_smoothing`; this module checks the inputs, picks the path (statically: a concrete
+smoothing of 0 is exact) and runs it compiled (see `_pair.compiled_query`).
 """
 
 from __future__ import annotations
