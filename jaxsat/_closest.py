@@ -37,7 +37,6 @@ import jax.numpy as jnp
 
 from jaxsat import _kernels as k
 from jaxsat._gjk import Simplex, closest_point_gjk
-from jaxsat._kernels import as_vecs, dot, safe_normalize, take_vec, vscale, vsum
 from jaxsat._narrowphase import sat_search
 from jaxsat._pair import PairFrame
 
@@ -73,15 +72,15 @@ class ExactDistance(NamedTuple):
 def witness(weights, vertices, indices):
     """(D,) sum over slots of weights[s] * vertices[indices[s]], in component form with the
     rows picked by select chains (`_kernels.take_vec`), not a gather and a matrix product."""
-    points = as_vecs(vertices)
-    return jnp.stack(vsum([vscale(weights[s], take_vec(points, indices[s]))
+    points = k.as_vecs(vertices)
+    return jnp.stack(k.vsum([k.vscale(weights[s], k.take_vec(points, indices[s]))
                            for s in range(weights.shape[0])]))
 
 
 def support_gap(axis, a_vertices, b_vertices):
     """gap(axis) = min over b of axis . b - max over a of axis . a (padding rows repeat a
     real row, so they change neither extreme)."""
-    return jnp.min(dot(b_vertices, axis)) - jnp.max(dot(a_vertices, axis))
+    return jnp.min(k.dot(b_vertices, axis)) - jnp.max(k.dot(a_vertices, axis))
 
 
 def exact_distance(frame: PairFrame) -> ExactDistance:
@@ -100,15 +99,15 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
         simplex = closest_point_gjk(a_vertices, moved_b, sat.axis, rounding, GJK_MAX_ITERATIONS)
     witness_a = witness(simplex.weights, a_vertices, simplex.index_a)
     witness_b = witness(simplex.weights, moved_b, simplex.index_b)
-    witness_axis, found = safe_normalize(witness_b - witness_a, 0.0)
+    witness_axis, found = k.safe_normalize(witness_b - witness_a, 0.0)
     witness_axis = jnp.where(found, witness_axis, sat.axis)
     sat_gap, witness_gap = -sat.depth, support_gap(witness_axis, a_vertices, b_vertices)
     # Apart, at a near-tie (a closest-feature switch) the gap is flat in the axis, so a gap
     # within rounding of the best can come from an axis sqrt(rounding) off: prefer the
     # witness axis there, whose direction is accurate to rounding (the gradient uses it).
-    use_gjk = witness_gap > sat_gap - jnp.where(sat.depth < 0, rounding, 0.0)
-    return ExactDistance(distance=jnp.where(use_gjk, witness_gap, sat_gap),
-                         axis=jnp.where(use_gjk, witness_axis, sat.axis),
+    use_witness = witness_gap > sat_gap - jnp.where(sat.depth < 0, rounding, 0.0)
+    return ExactDistance(distance=jnp.where(use_witness, witness_gap, sat_gap),
+                         axis=jnp.where(use_witness, witness_axis, sat.axis),
                          index_a=simplex.index_a, index_b=simplex.index_b,
                          weights=simplex.weights)
 
@@ -125,7 +124,7 @@ def signed_distance_of_witnesses(frame: PairFrame, found: ExactDistance):
     witness_a = witness(found.weights, frame.a.vertices, found.index_a)
     witness_b = (k.rotate(frame.rotation, witness(found.weights, frame.b.vertices, found.index_b))
                  + frame.translation)
-    gap = dot(found.axis, witness_b - witness_a)
+    gap = k.dot(found.axis, witness_b - witness_a)
     return found.distance + (gap - jax.lax.stop_gradient(gap))
 
 
@@ -170,7 +169,7 @@ def closest_pair_of_support_faces(a_vertices, a_count, b_vertices, b_count, axis
         centre = k.support_index(sense, points)
         previous, following = _ring_neighbours(centre, count)
         indices = (previous, centre, following)
-        windows.append((indices, [take_vec(points, index) for index in indices]))
+        windows.append((indices, [k.take_vec(points, index) for index in indices]))
     (indices_a, points_a), (indices_b, points_b) = windows
     candidates = []  # (side, edge start, point): side 0 puts a's points on b's edges
     best_squared = best_t = best_code = None

@@ -566,11 +566,10 @@ def _between_one_sided(gradient: np.ndarray, name: str) -> bool:
 def check_between_one_sided(gradient: np.ndarray, name: str, label: str):
     """At a kink the smooth value is a maximum over branches, so along every coordinate its
     gradient (one branch's) lies between the backward and the forward difference."""
+    assert _between_one_sided(gradient, name), label
     _, forward, backward = smooth_finite_differences(name)
     used = np.isfinite(forward)
     slack = 1e-4 * max(np.max(np.abs(gradient[used])), 1.0)
-    assert np.all(gradient[used] <= forward[used] + slack), label
-    assert np.all(gradient[used] >= backward[used] - slack), label
     assert np.any(forward[used] - backward[used] > 10 * slack), f"{label}: no kink here"
 
 
@@ -696,8 +695,9 @@ def test_catalogue_float32_matches_float64(name):
             # Identical shapes at identical poses tie exactly between u and -u, which the
             # searches tell apart by rounding alone: float32 may take the other branch, whose
             # gradient is this one with the roles of a and b swapped.
-            swapped = np.concatenate([np.ravel(g) for g in (*f32.smooth["grad"][1::-1],
-                                                            *f32.smooth["grad"][:1:-1])])
+            params_a, params_b, vertices_a, vertices_b = f32.smooth["grad"]
+            swapped = np.concatenate([np.ravel(g) for g in (params_b, params_a, vertices_b,
+                                                            vertices_a)])
             if _between_one_sided(swapped, name):
                 gradient = swapped
         check_between_one_sided(gradient, name, f"{name} float32")
