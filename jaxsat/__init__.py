@@ -18,12 +18,12 @@ from jaxsat._decompose import decompose as decompose
 from jaxsat._distance import ClosestPoints as ClosestPoints
 from jaxsat._distance import closest_points as closest_points
 from jaxsat._distance import signed_distance as signed_distance
-from jaxsat._narrowphase import Penetration as Penetration
-from jaxsat._narrowphase import intersects as intersects
-from jaxsat._narrowphase import penetration as penetration
 from jaxsat._poses import Pose as Pose
 from jaxsat._poses import pose2 as pose2
 from jaxsat._poses import pose3 as pose3
+from jaxsat._sat import Penetration as Penetration
+from jaxsat._sat import intersects as intersects
+from jaxsat._sat import penetration as penetration
 from jaxsat._scene import SceneCollisions as SceneCollisions
 from jaxsat._scene import collide as collide
 from jaxsat._shapes import Polytope as Polytope

@@ -5,7 +5,7 @@ gap(u) = min_b u.b - max_a u.a (u points from a towards b). It is the Euclidean 
 the shapes are apart and minus the penetration depth when they overlap; every gap(u) is a
 lower bound of it. Two searches find a maximiser:
 
-* the SAT (`_narrowphase.sat_search`) gives the penetration depth and axis, a maximiser
+* the SAT (`_sat.sat_search`) gives the penetration depth and axis, a maximiser
   whenever the shapes overlap or touch, and when the closest features are a vertex and a face
   or two crossing edges;
 * a closest-pair search on the shapes with b moved out along the SAT axis by the penetration
@@ -37,8 +37,9 @@ import jax.numpy as jnp
 
 from jaxsat import _kernels as k
 from jaxsat._gjk import Simplex, closest_point_gjk
-from jaxsat._narrowphase import sat_search
 from jaxsat._pair import PairFrame
+from jaxsat._sat import sat_search
+from jaxsat._shapes import ring_neighbours
 
 __all__ = ["ExactDistance", "closest_pair_of_support_faces", "exact_distance",
            "signed_distance_of_witnesses", "support_gap", "witness"]
@@ -93,8 +94,8 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     eps = jnp.finfo(frame.dtype).eps
     rounding = GJK_TOLERANCE * eps * (jnp.max(jnp.abs(a_vertices)) + jnp.max(jnp.abs(moved_b)))
     if frame.dim == 2:
-        simplex = closest_pair_of_support_faces(a_vertices, jnp.sum(frame.a.vertex_mask),
-                                                moved_b, jnp.sum(frame.b.vertex_mask), sat.axis)
+        simplex = closest_pair_of_support_faces(a_vertices, frame.a.num_real_vertices,
+                                                moved_b, frame.b.num_real_vertices, sat.axis)
     else:
         simplex = closest_point_gjk(a_vertices, moved_b, sat.axis, rounding, GJK_MAX_ITERATIONS)
     witness_a = witness(simplex.weights, a_vertices, simplex.index_a)
@@ -128,14 +129,6 @@ def signed_distance_of_witnesses(frame: PairFrame, found: ExactDistance):
     return found.distance + (gap - jax.lax.stop_gradient(gap))
 
 
-def _ring_neighbours(index, count):
-    """(previous, next) vertex of a polygon ring of `count` real vertices (padding rows come
-    after them, so the ring closes at count - 1, not at the padded end)."""
-    previous = jnp.where(index == 0, count - 1, index - 1)
-    following = jnp.where(index + 1 >= count, 0, index + 1)
-    return previous, following
-
-
 def closest_pair_of_support_faces(a_vertices, a_count, b_vertices, b_count, axis) -> Simplex:
     """The closest points of two convex polygons, given the SAT axis: exact when they are apart
     or touching, in a fixed handful of operations (no iteration).
@@ -167,7 +160,7 @@ def closest_pair_of_support_faces(a_vertices, a_count, b_vertices, b_count, axis
     for points, count, sense in ((k.as_vecs(a_vertices), a_count, direction),
                                  (k.as_vecs(b_vertices), b_count, k.vscale(-1.0, direction))):
         centre = k.support_index(sense, points)
-        previous, following = _ring_neighbours(centre, count)
+        previous, following = ring_neighbours(centre, count)
         indices = (previous, centre, following)
         windows.append((indices, [k.take_vec(points, index) for index in indices]))
     (indices_a, points_a), (indices_b, points_b) = windows

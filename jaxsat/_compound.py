@@ -23,9 +23,9 @@ import numpy as np
 
 from jaxsat import _shapes as shapes
 from jaxsat._decompose import decompose
-from jaxsat._narrowphase import intersects, penetration
 from jaxsat._pair import check_one_pair, compiled_query
 from jaxsat._poses import Pose
+from jaxsat._sat import intersects, penetration
 from jaxsat._shapes import Polytope
 
 __all__ = ["Compound", "CompoundPenetration", "compound", "concave_polygon", "stack_compounds",
@@ -107,14 +107,6 @@ def _check_alike(items: Sequence, kind: str) -> None:
         raise ValueError(f"{kind} cannot mix dtypes, got {sorted(str(d) for d in dtypes)}")
 
 
-def _size_class(dim: int, max_vertices: int) -> tuple[int, int, int, int]:
-    """Padded sizes (V, F, E, K) that `polygon` or `polyhedron` gives for `max_vertices`."""
-    if dim == 2:
-        return (max_vertices, max_vertices, 0, 0)
-    most_edges = max(3 * max_vertices - 6, 1)
-    return (max_vertices, max(2 * max_vertices - 4, 1), most_edges, most_edges)
-
-
 def _check_count(name: str, value: int | None, count: int, what: str) -> int:
     """`value` (the requested padded size) if it holds `count` items; `count` if None."""
     if value is None:
@@ -126,19 +118,15 @@ def _check_count(name: str, value: int | None, count: int, what: str) -> int:
     return int(value)
 
 
-def _piece_fields(pieces: Sequence[Polytope], sizes, num_pieces: int) -> dict[str, np.ndarray]:
-    """Every Polytope field of `pieces` padded to `sizes` and stacked on a leading piece axis
-    of length `num_pieces`; missing pieces repeat piece 0."""
-    padded = [shapes._padded_fields(piece, sizes) for piece in pieces]
-    padded += [padded[0]] * (num_pieces - len(padded))
-    return {name: np.stack([fields[name] for fields in padded])
-            for name in shapes._FIELD_SIZE_INDEX}
-
-
-def _assemble(pieces: Sequence[Polytope], sizes, num_pieces: int) -> Compound:
-    fields = _piece_fields(pieces, sizes, num_pieces)
-    return Compound(pieces=Polytope(**{name: jnp.asarray(value) for name, value in fields.items()}),
+def _assemble(pieces: Sequence[Polytope], sizes: shapes.SizeClass, num_pieces: int) -> Compound:
+    return Compound(pieces=shapes.pad_and_stack(pieces, sizes, num_pieces),
                     piece_mask=jnp.asarray(np.arange(num_pieces) < len(pieces)))
+
+
+def _common_size_class(pieces: Sequence[Polytope]) -> shapes.SizeClass:
+    """The smallest size class that holds every piece."""
+    return shapes.SizeClass(*(max(column) for column in
+                              zip(*(piece.size_class for piece in pieces), strict=True)))
 
 
 def compound(pieces: Sequence[Polytope | np.ndarray], max_pieces: int | None = None,
@@ -167,10 +155,11 @@ def compound(pieces: Sequence[Polytope | np.ndarray], max_pieces: int | None = N
     num_pieces = _check_count("max_pieces", max_pieces, len(pieces), "pieces")
     built = [_as_piece(piece, index, max_vertices) for index, piece in enumerate(pieces)]
     _check_alike(built, "compound")
-    sizes = tuple(max(column) for column in zip(*map(shapes._sizes, built), strict=True))
+    sizes = _common_size_class(built)
     if max_vertices is not None:
-        _check_count("max_vertices", max_vertices, sizes[0], "vertices in a piece")
-        sizes = tuple(map(max, sizes, _size_class(built[0].dim, int(max_vertices))))
+        _check_count("max_vertices", max_vertices, sizes.vertices, "vertices in a piece")
+        sizes = shapes.SizeClass(*map(max, sizes,
+                                      shapes.size_class_for(built[0].dim, int(max_vertices))))
     return _assemble(built, sizes, num_pieces)
 
 
@@ -189,7 +178,7 @@ def concave_polygon(vertices, max_pieces: int | None = None, max_vertices: int |
       ValueError: everything `decompose` rejects, and too many pieces or piece vertices for
         `max_pieces` / `max_vertices`.
     """
-    dtype = shapes._float_dtype(np.asarray(vertices), dtype)
+    dtype = shapes.float_dtype(np.asarray(vertices), dtype)
     pieces = decompose(vertices)
     if max_vertices is not None:
         largest = max(len(piece) for piece in pieces)
@@ -234,15 +223,10 @@ def stack_compounds(compounds: Sequence[Compound | Polytope]) -> Compound:
             raise ValueError(f"stack_compounds entry {index} is batched {entry.batch_shape}")
     _check_alike(compounds, "stack_compounds")
     piece_lists = [_real_pieces(entry) for entry in compounds]
-    sizes = tuple(max(column) for column in
-                  zip(*(shapes._sizes(piece) for pieces in piece_lists for piece in pieces),
-                      strict=True))
+    sizes = _common_size_class([piece for pieces in piece_lists for piece in pieces])
     num_pieces = max(entry.num_pieces for entry in compounds)
-    batch = [_piece_fields(pieces, sizes, num_pieces) for pieces in piece_lists]
-    masks = [np.arange(num_pieces) < len(pieces) for pieces in piece_lists]
-    stacked = {name: jnp.asarray(np.stack([fields[name] for fields in batch]))
-               for name in shapes._FIELD_SIZE_INDEX}
-    return Compound(pieces=Polytope(**stacked), piece_mask=jnp.asarray(np.stack(masks)))
+    batch = [_assemble(pieces, sizes, num_pieces) for pieces in piece_lists]
+    return jax.tree.map(lambda *leaves: jnp.asarray(np.stack(leaves)), *batch)
 
 
 def _real_pieces(entry: Compound) -> list[Polytope]:

@@ -40,9 +40,9 @@ from jaxsat._kernels import (
     rotate,
     safe_divide,
 )
-from jaxsat._narrowphase import sat_search
 from jaxsat._pair import PairFrame, check_pair, compiled_query, pair_frame
 from jaxsat._poses import Pose
+from jaxsat._sat import sat_search
 from jaxsat._shapes import Polytope
 
 __all__ = ["Contacts", "contacts"]
@@ -297,8 +297,7 @@ def _keep_near(candidates: _Candidates, frame: _Frame) -> _Candidates:
 def _polygon_face(vertices, mask, direction, tol) -> _Face:
     """The edge of a counter-clockwise polygon whose outward normal is best aligned with
     `direction`, among the edges at its support vertices (within tol of the farthest along
-    `direction`). Edge i joins vertex i and i + 1; padding repeats vertex 0, so rolling the
-    vertices closes the ring in either case."""
+    `direction`). Edge i joins vertex i and i + 1, the rolled vertices (see `Polytope`)."""
     ends = jnp.roll(vertices, -1, axis=0)
     support = dot(vertices, direction)
     near = support >= jnp.max(support) - tol
@@ -359,7 +358,7 @@ def _valid_first(candidates: _Candidates) -> _Candidates:
 def _num_slots(shape: Polytope) -> int:
     """Static bound on the edges of one face: 4 for a parallelepiped (at most 3 unique edge
     directions), else one less than the vertex count (a face with every vertex would be flat)."""
-    if shape.edge_directions.shape[0] <= 3:
+    if shape.is_parallelepiped:
         return 4
     return max(min(shape.edge_endpoints.shape[0], shape.vertices.shape[0] - 1), 3)
 

@@ -12,7 +12,7 @@ import functools
 
 import jax
 
-from jaxsat import _batching, _contacts, _narrowphase
+from jaxsat import _batching, _contacts, _sat
 from jaxsat._broadphase import broad_phase, world_aabbs
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
@@ -62,13 +62,13 @@ def _check_scene(shapes, poses, level):
 
 def _penetration_and_contacts(a, pose_a, b, pose_b):
     # Both share the SAT; under jit XLA computes it once.
-    return (_narrowphase.penetration(a, pose_a, b, pose_b),
+    return (_sat.penetration(a, pose_a, b, pose_b),
             _contacts.contacts(a, pose_a, b, pose_b))
 
 
 def _narrow_phase(level, shapes, poses, pairs, chunk_size, devices):
     """Per-slot results at `level` for the candidate pairs."""
-    query = {"intersects": _narrowphase.intersects, "penetration": _narrowphase.penetration,
+    query = {"intersects": _sat.intersects, "penetration": _sat.penetration,
              "contacts": _penetration_and_contacts}[level]
     return _batching.query_pairs(query, shapes, poses, pairs, chunk_size=chunk_size,
                                  devices=devices)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +12,32 @@ import numpy as np
 
 from jaxsat import _geometry as geometry
 
-__all__ = ["Polytope", "polygon", "polyhedron", "box", "regular_polygon", "stack"]
+__all__ = ["Polytope", "SizeClass", "box", "float_dtype", "pad_and_stack", "polygon",
+           "polyhedron", "regular_polygon", "ring_neighbours", "size_class_for", "stack"]
+
+
+class SizeClass(NamedTuple):
+    """The padded sizes of a Polytope's fields: shapes of one size class (and dimension and
+    dtype) share every compiled kernel."""
+
+    vertices: int
+    """V: rows of `vertices` and `vertex_mask`."""
+    faces: int
+    """F: rows of `face_normals`, `face_extents` and `face_mask`."""
+    edge_directions: int
+    """E: rows of `edge_directions` and `edge_mask` (0 in 2D)."""
+    hull_edges: int
+    """K: rows of `edge_endpoints`, `edge_face_normals` and `hull_edge_mask` (0 in 2D)."""
+
+
+def size_class_for(dim: int, max_vertices: int) -> SizeClass:
+    """The size class `polygon` or `polyhedron` pads to for `max_vertices`: a polygon has as
+    many edges as vertices; a convex polyhedron with V vertices has at most 2V - 4 faces and
+    3V - 6 edges (Euler's formula with triangular faces)."""
+    if dim == 2:
+        return SizeClass(max_vertices, max_vertices, 0, 0)
+    most_edges = max(3 * max_vertices - 6, 1)
+    return SizeClass(max_vertices, max(2 * max_vertices - 4, 1), most_edges, most_edges)
 
 
 @jax.tree_util.register_dataclass
@@ -19,10 +45,18 @@ __all__ = ["Polytope", "polygon", "polyhedron", "box", "regular_polygon", "stack
 class Polytope:
     """A convex polygon (D = 2) or polyhedron (D = 3) in its own local frame.
 
-    Every array is padded to a fixed size so that one compiled kernel serves every shape of a
-    size class. Padding entries repeat the first valid entry, so they never change a minimum or a
-    maximum; the masks say which entries are real. Build instances with `polygon`, `polyhedron`,
-    `box`, `regular_polygon` and batch them with `stack` (which adds a leading batch axis).
+    Every array is padded to a fixed size (its `size_class`) so that one compiled kernel
+    serves every shape of a size class. The padding rule: padding rows repeat row 0 (masks pad
+    with False). So padding never changes a minimum or a maximum over rows, and extremes,
+    supports and SAT depths need no mask; the masks are needed only where a row is counted or
+    weighted (soft extremes, the real vertex count of a polygon ring, contact slots). Build
+    instances with `polygon`, `polyhedron`, `box`, `regular_polygon` and batch them with
+    `stack` (which adds a leading batch axis).
+
+    Edges. In 2D the real vertices come first, counter-clockwise, and edge i joins vertex i and
+    vertex i + 1 of the ring of `num_real_vertices` (`ring_neighbours`); because padding
+    repeats vertex 0, rolling the padded array by one also closes the ring, with zero-length
+    edges at the padding. In 3D `edge_endpoints` lists the hull edges.
     """
 
     vertices: jax.Array
@@ -60,8 +94,36 @@ class Polytope:
     def dtype(self) -> jnp.dtype:
         return self.vertices.dtype
 
+    @property
+    def size_class(self) -> SizeClass:
+        """The padded sizes of the fields (static)."""
+        return SizeClass(self.vertices.shape[-2], self.face_normals.shape[-2],
+                         self.edge_directions.shape[-2], self.edge_endpoints.shape[-2])
 
-def _float_dtype(source: np.ndarray | None, dtype) -> jnp.dtype:
+    @property
+    def is_parallelepiped(self) -> bool:
+        """Static: a 3D shape with at most 3 (padded) unique edge directions, which only a
+        parallelepiped (a box, possibly sheared) has. Its faces have 4 edges, and every pair
+        of its edge directions with another parallelepiped's bounds their Minkowski
+        difference, so the SAT projects on all 9 cross products instead of using the Gauss
+        map."""
+        return self.dim == 3 and self.edge_directions.shape[-2] <= 3
+
+    @property
+    def num_real_vertices(self) -> jax.Array:
+        """() int32 (batch shape): how many vertices are real (traced)."""
+        return jnp.sum(self.vertex_mask, axis=-1, dtype=jnp.int32)
+
+
+def ring_neighbours(index, count):
+    """(previous, next) vertex index of a polygon ring of `count` real vertices (padding rows
+    come after them, so the ring closes at count - 1, not at the padded end)."""
+    previous = jnp.where(index == 0, count - 1, index - 1)
+    following = jnp.where(index + 1 >= count, 0, index + 1)
+    return previous, following
+
+
+def float_dtype(source: np.ndarray | None, dtype) -> jnp.dtype:
     """The JAX dtype a constructor stores: `dtype`, else the input's float dtype, else default."""
     if dtype is None:
         is_float = source is not None and np.issubdtype(source.dtype, np.floating)
@@ -100,8 +162,8 @@ def _check_max_vertices(max_vertices: int | None, count: int) -> int:
 
 
 def _build(vertices, face_normals, edge_directions, edge_endpoints, edge_face_normals,
-           sizes: tuple[int, int, int, int], dtype) -> Polytope:
-    """Pad NumPy geometry to `sizes` = (V, F, E, K) and convert it to a Polytope of `dtype`."""
+           sizes: SizeClass, dtype) -> Polytope:
+    """Pad NumPy geometry to `sizes` and convert it to a Polytope of `dtype`."""
     num_vertices, num_faces, num_edges, num_hull_edges = sizes
     extents = vertices @ face_normals.T
     face_extents = np.stack([extents.min(axis=0), extents.max(axis=0)], axis=1)
@@ -147,10 +209,11 @@ def polygon(vertices, max_vertices: int | None = None, *, dtype=None,
     ring = geometry.convex_polygon(points)
     size = _check_max_vertices(max_vertices, len(ring))
     normals = _maybe_unique(geometry.polygon_edge_normals(ring), unique_axes)
-    num_faces = len(normals) if max_vertices is None else size
+    sizes = (size_class_for(2, size) if max_vertices is not None
+             else SizeClass(size, len(normals), 0, 0))
     return _build(ring, normals, np.zeros((0, 2)), np.zeros((0, 2), np.int64),
-                  np.zeros((0, 2, 2)), (size, num_faces, 0, 0),
-                  _float_dtype(np.asarray(vertices), dtype))
+                  np.zeros((0, 2, 2)), sizes,
+                  float_dtype(np.asarray(vertices), dtype))
 
 
 def polyhedron(points, max_vertices: int | None = None, *, dtype=None,
@@ -178,12 +241,11 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None,
     lengths = np.linalg.norm(segments, axis=1, keepdims=True)
     directions = _maybe_unique(segments / lengths, unique_axes)
     size = _check_max_vertices(max_vertices, len(hull.vertices))
-    sizes = (size, len(normals), len(directions), len(hull.edges))
-    if max_vertices is not None:
-        sizes = (size, max(2 * size - 4, 1), max(3 * size - 6, 1), max(3 * size - 6, 1))
+    sizes = (size_class_for(3, size) if max_vertices is not None
+             else SizeClass(size, len(normals), len(directions), len(hull.edges)))
     return _build(hull.vertices, normals, directions, hull.edges,
                   hull.face_normals[hull.edge_faces], sizes,
-                  _float_dtype(np.asarray(points), dtype))
+                  float_dtype(np.asarray(points), dtype))
 
 
 def box(half_extents, max_vertices: int | None = None, *, dtype=None,
@@ -200,7 +262,7 @@ def box(half_extents, max_vertices: int | None = None, *, dtype=None,
         raise ValueError(f"half_extents must have 2 or 3 entries, got shape {half.shape}")
     if not np.all(np.isfinite(half)) or np.any(half <= 0):
         raise ValueError(f"half_extents must be finite and positive, got {half.tolist()}")
-    dtype = _float_dtype(np.asarray(half_extents), dtype)
+    dtype = float_dtype(np.asarray(half_extents), dtype)
     if len(half) == 2:
         corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=np.float64) * half
         return polygon(corners, max_vertices, dtype=dtype, unique_axes=unique_axes)
@@ -224,32 +286,40 @@ def regular_polygon(num_sides: int, radius: float = 1.0, max_vertices: int | Non
     return polygon(corners, max_vertices, dtype=dtype)
 
 
-def _sizes(shape: Polytope) -> tuple[int, int, int, int]:
-    return (shape.vertices.shape[0], shape.face_normals.shape[0],
-            shape.edge_directions.shape[0], shape.edge_endpoints.shape[0])
-
-
-_FIELD_SIZE_INDEX = {
-    "vertices": 0, "vertex_mask": 0, "face_normals": 1, "face_extents": 1, "face_mask": 1,
-    "edge_directions": 2, "edge_mask": 2, "edge_endpoints": 3, "edge_face_normals": 3,
-    "hull_edge_mask": 3,
+_FIELD_SIZES = {
+    "vertices": "vertices", "vertex_mask": "vertices", "face_normals": "faces",
+    "face_extents": "faces", "face_mask": "faces", "edge_directions": "edge_directions",
+    "edge_mask": "edge_directions", "edge_endpoints": "hull_edges",
+    "edge_face_normals": "hull_edges", "hull_edge_mask": "hull_edges",
 }
-"""Which entry of the padded sizes (V, F, E, K) each Polytope field's first axis follows."""
+"""Which `SizeClass` entry each Polytope field's first axis follows."""
 
 
-def _padded_fields(shape: Polytope, sizes: tuple[int, int, int, int]) -> dict[str, np.ndarray]:
-    """Every field of an unbatched shape as NumPy, padded to `sizes` = (V, F, E, K).
-
-    Padding repeats entry 0 and masks pad with False, as in the constructors. NumPy keeps
-    this fast: eager jnp ops made stacking 256 boxes take 2 s."""
+def _padded_fields(shape: Polytope, sizes: SizeClass) -> dict[str, np.ndarray]:
+    """Every field of an unbatched shape as NumPy, padded to `sizes` by the padding rule.
+    NumPy keeps this fast: eager jnp ops made stacking 256 boxes take 2 s."""
     fields = {}
-    for name, size_index in _FIELD_SIZE_INDEX.items():
-        field, size = np.asarray(getattr(shape, name)), sizes[size_index]
+    for name, size_name in _FIELD_SIZES.items():
+        field, size = np.asarray(getattr(shape, name)), getattr(sizes, size_name)
         if field.dtype == bool:
             fields[name] = np.concatenate([field, np.zeros(size - len(field), bool)])
         else:
             fields[name] = _pad_rows(field, size, name)[0]
     return fields
+
+
+def pad_and_stack(shapes: Sequence[Polytope], sizes: SizeClass | None = None,
+                  length: int | None = None) -> Polytope:
+    """Unbatched shapes padded to `sizes` (default: the smallest class that holds them all)
+    and stacked on a new leading axis of `length` entries (default: one per shape; missing
+    entries repeat shape 0). Eager, in NumPy; the caller checks the shapes are alike."""
+    if sizes is None:
+        sizes = SizeClass(*(max(column) for column in
+                            zip(*(shape.size_class for shape in shapes), strict=True)))
+    padded = [_padded_fields(shape, sizes) for shape in shapes]
+    padded += [padded[0]] * ((length or len(padded)) - len(padded))
+    return Polytope(**{name: jnp.asarray(np.stack([fields[name] for fields in padded]))
+                       for name in _FIELD_SIZES})
 
 
 def stack(shapes: Sequence[Polytope]) -> Polytope:
@@ -275,7 +345,4 @@ def stack(shapes: Sequence[Polytope]) -> Polytope:
     dtypes = {shape.dtype for shape in shapes}
     if len(dtypes) > 1:
         raise ValueError(f"stack cannot mix dtypes, got {sorted(str(d) for d in dtypes)}")
-    sizes = tuple(max(column) for column in zip(*map(_sizes, shapes), strict=True))
-    padded = [_padded_fields(shape, sizes) for shape in shapes]
-    return Polytope(**{name: jnp.asarray(np.stack([fields[name] for fields in padded]))
-                       for name in _FIELD_SIZE_INDEX})
+    return pad_and_stack(shapes)

@@ -44,8 +44,8 @@ import jax.numpy as jnp
 from jaxsat import _kernels as kernels
 from jaxsat._closest import exact_distance
 from jaxsat._kernels import Vec, dot, materialize, safe_divide
-from jaxsat._narrowphase import sat_runner_up
 from jaxsat._pair import PairFrame
+from jaxsat._sat import sat_runner_up
 from jaxsat._shapes import Polytope
 
 __all__ = ["NEWTON_STEPS", "smooth_signed_distance", "smoothing_error_bound"]

@@ -295,6 +295,55 @@ def test_stack_adds_a_leading_batch_axis_and_pads():
     assert cubes.batch_shape == (2,) and cubes.vertices.shape == (2, 12, 3)
 
 
+def test_stack_pads_every_field_by_repeating_row_zero():
+    """The padding rule every kernel relies on (see `Polytope`): padding rows repeat row 0 and
+    masks pad with False, field by field, and the stack takes the largest size class."""
+    shapes = [jaxsat.box([1.0, 2.0, 3.0]), jaxsat.polyhedron(CUBE * 2),
+              jaxsat.polyhedron(np.random.default_rng(3).normal(size=(9, 3)))]
+    stacked = jaxsat.stack(shapes)
+    assert stacked.size_class == tuple(max(sizes) for sizes in
+                                       zip(*(shape.size_class for shape in shapes), strict=True))
+    for index, shape in enumerate(shapes):
+        for name, value in vars(shape).items():
+            padded, own = np.asarray(getattr(stacked, name)[index]), np.asarray(value)
+            rows = len(own)
+            np.testing.assert_array_equal(padded[:rows], own, err_msg=name)
+            expected = False if own.dtype == bool else own[:1]
+            assert np.all(padded[rows:] == expected), name
+
+
+def test_size_classes_and_parallelepipeds():
+    """`polyhedron(..., max_vertices=V)` pads to 2V - 4 faces and 3V - 6 edges, as
+    `size_class_for` says; only shapes with at most 3 edge directions are parallelepipeds."""
+    rng = np.random.default_rng(4)
+    for count in (4, 8, 20):
+        hull = jaxsat.polyhedron(rng.normal(size=(count, 3)), max_vertices=count)
+        assert hull.size_class == (count, 2 * count - 4, 3 * count - 6, 3 * count - 6)
+        assert not hull.is_parallelepiped
+    assert jaxsat.polygon(SQUARE, max_vertices=6).size_class == (6, 6, 0, 0)
+    assert jaxsat.box([1.0, 2.0, 3.0]).is_parallelepiped
+    sheared = jaxsat.polyhedron(CUBE @ np.array([[1.0, 0.4, 0.0], [0.0, 1.0, 0.3], [0, 0, 1]]))
+    assert sheared.is_parallelepiped
+    assert not jaxsat.box([1.0, 2.0, 3.0], max_vertices=8).is_parallelepiped
+    assert not jaxsat.box([1.0, 2.0]).is_parallelepiped  # 2D
+
+
+@pytest.mark.parametrize("count", [3, 5, 8])
+def test_polygon_ring_neighbours_close_at_the_last_real_vertex(count):
+    """Edge i of a padded polygon joins vertex i and its ring successor, which is the rolled
+    padded array for every real vertex (padding repeats vertex 0)."""
+    from jaxsat._shapes import ring_neighbours
+
+    shape = jaxsat.regular_polygon(count, 1.0, max_vertices=8)
+    assert int(shape.num_real_vertices) == count
+    index = jnp.arange(count)
+    previous, following = ring_neighbours(index, shape.num_real_vertices)
+    np.testing.assert_array_equal(following, (np.arange(count) + 1) % count)
+    np.testing.assert_array_equal(previous, (np.arange(count) - 1) % count)
+    rolled = np.roll(np.asarray(shape.vertices), -1, axis=0)[:count]
+    np.testing.assert_array_equal(rolled, np.asarray(shape.vertices)[np.asarray(following)])
+
+
 def _both(a, pose_a, b, pose_b):
     return jaxsat.penetration(a, pose_a, b, pose_b), jaxsat.intersects(a, pose_a, b, pose_b)
 

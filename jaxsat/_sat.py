@@ -10,7 +10,7 @@ Candidate axes: in 2D the edge normals of both shapes; in 3D the face normals of
 and the cross products of edge directions. Everything is computed in a's local frame. Face
 normals (and, for boxes, the edge cross products) are measured by projecting both shapes'
 vertices; hull edge pairs go through the Gauss map, which tests only the pairs that can bound
-the Minkowski difference (see `_projection_group` and `_edge_axes_by_gauss_map`, and
+the Minkowski difference (see `ProjectedAxes` and `_edge_axes_by_gauss_map`, and
 benchmarks/README.md, "Performance to the limit", for why they are written as they are).
 """
 
@@ -28,7 +28,9 @@ from jaxsat._pair import PairFrame, cast_pair, check_pair, compiled_query, pair_
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
-__all__ = ["Penetration", "SatAxis", "intersects", "penetration", "sat_runner_up", "sat_search"]
+__all__ = ["EDGE_PAIR", "FACE_OF_A", "FACE_OF_B", "Candidates", "GaussMapAxes", "Penetration",
+           "ProjectedAxes", "SatAxis", "candidates", "intersects", "penetration",
+           "sat_runner_up", "sat_search"]
 
 
 @jax.tree_util.register_dataclass
@@ -42,20 +44,89 @@ class Penetration:
     """(D,) float: unit world-frame axis from a towards b; moving b by depth * normal separates."""
 
 
+class ProjectedAxes(NamedTuple):
+    """Candidates measured by projecting both shapes' vertices on them (face normals of both
+    shapes, and for parallelepipeds every pair of edge directions), in a's frame.
+
+    The axes are kept as D component arrays (C,), so that every step is elementwise on them
+    and XLA fuses the group into a few passes (stacked (C, D) axes ran box pairs 2x slower).
+    Faces come first (a's, then b's), so the first of equally deep axes is a face normal."""
+
+    depths: jax.Array
+    """(C,) float: the depth s(u) along each candidate's better sense; inf for no axis."""
+    components: tuple[jax.Array, ...]
+    """D arrays (C,): the candidates' unnormalised axes, component by component."""
+    inverse_norm: jax.Array
+    """(C,) float: 1 / |axis| (1 where the axis is degenerate)."""
+    signs: jax.Array
+    """(C,) float: +1 or -1, the sense that gives `depths` (from a towards b)."""
+    num_faces_a: int
+    """Static: candidates [0, num_faces_a) are a's face normals."""
+    num_faces: int
+    """Static: candidates [num_faces_a, num_faces) are b's; the rest are edge pairs."""
+
+    def axis(self, index) -> jax.Array:
+        """(D,) the signed unit axis of candidate `index`."""
+        return (self.signs[index] * self.inverse_norm[index]
+                * jnp.stack([component[index] for component in self.components]))
+
+    def cosines_to(self, unit) -> jax.Array:
+        """(C,) cosines between each candidate's signed unit axis and `unit`."""
+        return (sum(component * unit[k] for k, component in enumerate(self.components))
+                * self.inverse_norm * self.signs)
+
+    def feature(self, index) -> jax.Array:
+        """() int32: which `SatAxis.feature` candidate `index` is."""
+        return jnp.where(index < self.num_faces_a, FACE_OF_A,
+                         jnp.where(index < self.num_faces, FACE_OF_B, EDGE_PAIR)
+                         ).astype(jnp.int32)
+
+
+class GaussMapAxes(NamedTuple):
+    """Edge-edge candidates of two hulls, one per pair of hull edges (K_a, K_b), with depths
+    from Plucker moments (see `_edge_axes_by_gauss_map`); only a winner's axis is built."""
+
+    depths: jax.Array
+    """(K_a, K_b) float: depth of each edge pair that forms a Minkowski face; inf otherwise."""
+    directions_a: jax.Array
+    """(K_a, D) float: a's unit hull-edge directions."""
+    directions_b: jax.Array
+    """(K_b, D) float: b's, in a's frame."""
+    normals_a: jax.Array
+    """(K_a, D) float: the second face normal at each of a's hull edges (fixes the sense)."""
+
+    def axis(self, index) -> jax.Array:
+        """(D,) the unit axis of flattened edge pair `index`, its sense given by the
+        orientation rule of `_edge_axes_by_gauss_map` (BDC > 0)."""
+        row, col = jnp.divmod(index, self.directions_b.shape[0])
+        crossed = cross(self.directions_a[row], self.directions_b[col])
+        sign = jnp.where(jnp.dot(self.normals_a[row], self.directions_b[col]) > 0, 1.0, -1.0)
+        return sign * safe_normalize(crossed, 0.0)[0]
+
+
+class Candidates(NamedTuple):
+    """Every candidate axis of one pair, in two groups that stay apart: concatenating them
+    would make XLA materialise every depth."""
+
+    projected: ProjectedAxes
+    gauss_map: GaussMapAxes | None
+    """None unless the Gauss map tests the hull edge pairs (3D, not both parallelepipeds)."""
+
+
+FACE_OF_A, FACE_OF_B, EDGE_PAIR = 0, 1, 2
+"""Values of `SatAxis.feature`: which kind of candidate gave the axis."""
+
+
 def _interval_depths(a_min, a_max, b_min, b_max):
     """The better sense of each axis: depth min(b pushed along +n, along -n), and its sign."""
     plus, minus = a_max - b_min, b_max - a_min
     return jnp.minimum(plus, minus), jnp.where(plus <= minus, 1.0, -1.0).astype(plus.dtype)
 
 
-def _projection_group(a: Polytope, b: Polytope, b_vertices_in_a, rotation, with_edges: bool):
-    """Candidates measured by projecting both shapes' vertices: the face normals of both and,
-    with_edges, the cross product of every pair of unique edge directions (cheapest for boxes:
-    3 x 3 axes). Returns depths (C,) and `axis_of` (index -> signed unit axis in a's frame).
-
-    The axes are kept as D component arrays (C,), so that every step is elementwise on them
-    and XLA fuses the group into a few passes (stacked (C, D) axes ran box pairs 2x slower).
-    Faces come first, so the first of equally deep axes is a face normal."""
+def _projected_axes(a: Polytope, b: Polytope, b_vertices_in_a, rotation,
+                    with_edges: bool) -> ProjectedAxes:
+    """The face normals of both shapes and, with_edges, the cross product of every pair of
+    unique edge directions (cheapest for boxes: 3 x 3 axes), measured by projection."""
     normals_b = rotate(rotation, b.face_normals)
     axes = [jnp.concatenate([a.face_normals[:, k], normals_b[:, k]]) for k in range(a.dim)]
     squared = jnp.ones_like(axes[0])
@@ -72,15 +143,9 @@ def _projection_group(a: Polytope, b: Polytope, b_vertices_in_a, rotation, with_
     depths, signs = _interval_depths(*extremes(axes, a.vertices),
                                      *extremes(axes, b_vertices_in_a))
     depths = jnp.where(valid, depths * inverse_norm, jnp.inf)
-
-    def axis_of(index):
-        return signs[index] * inverse_norm[index] * jnp.stack([axis[index] for axis in axes])
-
-    def cosine_to(unit):
-        """(C,) cosines between each candidate's signed unit axis and `unit`."""
-        return sum(axis * unit[k] for k, axis in enumerate(axes)) * inverse_norm * signs
-
-    return depths, axis_of, cosine_to
+    num_faces_a = a.face_normals.shape[0]
+    return ProjectedAxes(depths, tuple(axes), inverse_norm, signs, num_faces_a,
+                         num_faces_a + b.face_normals.shape[0])
 
 
 def _hull_edge_frames(shape: Polytope, rotation=None, translation=None):
@@ -95,7 +160,7 @@ def _hull_edge_frames(shape: Polytope, rotation=None, translation=None):
     return points, directions, first, second
 
 
-def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
+def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation) -> GaussMapAxes:
     """Edge-edge candidates only for hull-edge pairs that form a Minkowski face.
 
     Two edges can give the penetration axis only if their arcs on the Gauss map cross (the
@@ -104,8 +169,7 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     with n = e_a x e_b and Plucker moments m = e x p it is n . (p_a - p_b) / |n| =
     -(e_b . m_a + e_a . m_b) / |n|, signed so the axis points out of a. Other pairs are
     skipped: their axes never give the minimum. (The moment form cancels digits in float32;
-    `penetration` measures the winner again by projection, so that only affects near-ties.)
-    Returns (depths (K_a, K_b), what `_gauss_map_axis` needs to build a winner's axis)."""
+    `sat_search` measures the winner again by projection, so that only affects near-ties.)"""
     points_a, dir_a, na1, na2 = _hull_edge_frames(a)
     points_b, dir_b, nb1, nb2 = _hull_edge_frames(b, rotation, translation)
     cba, dba = -project(dir_a, nb1), -project(dir_a, nb2)
@@ -125,45 +189,30 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation):
     moment_a, moment_b = cross(dir_a, points_a), cross(dir_b, points_b)
     numerator = -project(moment_a, dir_b) - project(dir_a, moment_b)
     depths = jnp.where(valid, numerator * orientation * inverse_sine, jnp.inf)
-    return depths, (dir_a, dir_b, na2)
-
-
-def _gauss_map_axis(index, dir_a, dir_b, normals_a):
-    """The unit axis of flattened edge pair `index`, built only for the winner (its sign is
-    the orientation rule of `_edge_axes_by_gauss_map`, BDC > 0)."""
-    row, col = jnp.divmod(index, dir_b.shape[0])
-    crossed = cross(dir_a[row], dir_b[col])
-    sign = jnp.where(jnp.dot(normals_a[row], dir_b[col]) > 0, 1.0, -1.0)
-    return sign * safe_normalize(crossed, 0.0)[0]
+    return GaussMapAxes(depths, dir_a, dir_b, na2)
 
 
 def _use_gauss_map(a: Polytope, b: Polytope) -> bool:
     """Static choice of the edge-edge method from the padded sizes.
 
     Projection tries every pair of unique edge directions; that is cheapest for boxes, and a
-    polyhedron with at most 3 edge directions is a parallelepiped, for which every such pair
-    is a Minkowski face. Any other shape goes through the Gauss map. Both methods then try
-    the same axes, so padding (which only repeats edges) never changes a result, separated
-    gaps included."""
-    max_directions = 3
-    return max(a.edge_directions.shape[0], b.edge_directions.shape[0]) > max_directions
+    polyhedron with at most 3 edge directions is a parallelepiped (`Polytope.is_parallelepiped`),
+    for which every such pair is a Minkowski face. Any other shape goes through the Gauss map.
+    Both methods then try the same axes, so padding (which only repeats edges) never changes
+    a result, separated gaps included."""
+    return not (a.is_parallelepiped and b.is_parallelepiped)
 
 
-def _candidate_groups(frame: PairFrame, prune: bool = True):
-    """The candidate axes of one query, in groups of (depths (C,), axis_of). `axis_of` maps
-    an index of the group to its unit axis in a's frame, so that a costly group builds only
-    its winner's axis; groups stay apart because concatenating them would make XLA
-    materialise every depth. prune=False tests every edge-direction pair by projection,
-    Gauss map or not."""
+def candidates(frame: PairFrame, prune: bool = True) -> Candidates:
+    """The candidate axes of one prepared pair. prune=False tests every edge-direction pair
+    by projection, Gauss map or not."""
     a, b = frame.a, frame.b
     gauss_map = a.dim == 3 and prune and _use_gauss_map(a, b)
-    with_edges = a.dim == 3 and not gauss_map
-    groups = [_projection_group(a, b, frame.b_vertices, frame.rotation, with_edges)]
-    if gauss_map:
-        edge_depths, edge_data = _edge_axes_by_gauss_map(a, b, frame.rotation,
-                                                         frame.translation)
-        groups.append((edge_depths, lambda index: _gauss_map_axis(index, *edge_data), None))
-    return groups
+    projected = _projected_axes(a, b, frame.b_vertices, frame.rotation,
+                                with_edges=a.dim == 3 and not gauss_map)
+    edges = (_edge_axes_by_gauss_map(a, b, frame.rotation, frame.translation) if gauss_map
+             else None)
+    return Candidates(projected, edges)
 
 
 def _winner(depths: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -181,46 +230,58 @@ def _winner(depths: jax.Array) -> tuple[jax.Array, jax.Array]:
     return row_minima[row], row * depths.shape[1] + jnp.argmin(depths[row])
 
 
-def _smallest(candidates):
-    """(depth, axis) of the smallest depth among (depth, axis) pairs, the first at ties."""
-    best_depth, best_axis = candidates[0]
-    for depth, axis in candidates[1:]:
-        better = depth < best_depth
-        best_depth = jnp.where(better, depth, best_depth)
-        best_axis = jnp.where(better, axis, best_axis)
-    return best_depth, best_axis
+def _smallest(entries):
+    """The entry (a tuple whose first element is a depth) of smallest depth, the first at
+    ties, selected element by element."""
+    best = entries[0]
+    for entry in entries[1:]:
+        better = entry[0] < best[0]
+        best = tuple(jnp.where(better, new, old) for new, old in zip(entry, best, strict=True))
+    return best
 
 
-def _best_axis(groups):
-    """The smallest depth over all groups and its unit axis (in a's frame)."""
-    candidates = []
-    for depths, axis_of, _ in groups:
-        depth, index = _winner(depths)
-        candidates.append((depth, axis_of(index)))
-    return _smallest(candidates)
+def _winners(found: Candidates, exclude_near=None, min_cosine=None):
+    """(depth, axis, feature) of each group's best candidate; with `exclude_near`, candidates
+    whose axis is within arccos(min_cosine) of that unit axis are left out."""
+    projected = found.projected
+    depths = projected.depths
+    if exclude_near is not None:
+        depths = jnp.where(projected.cosines_to(exclude_near) >= min_cosine, jnp.inf, depths)
+    depth, index = _winner(depths)
+    entries = [(depth, projected.axis(index), projected.feature(index))]
+    if found.gauss_map is not None:
+        depth, index = _winner(found.gauss_map.depths)
+        axis = found.gauss_map.axis(index)
+        if exclude_near is not None:
+            depth = jnp.where(dot(axis, exclude_near) >= min_cosine, jnp.inf, depth)
+        entries.append((depth, axis, jnp.asarray(EDGE_PAIR, jnp.int32)))
+    return entries
 
 
 class SatAxis(NamedTuple):
     """The SAT's answer for one pair, in a's frame (see the module docstring)."""
 
     depth: jax.Array
-    """() float: min over candidate axes of the depth; > 0 iff the shapes overlap."""
+    """() float: min over candidate axes of s(u), measured by projecting both shapes' vertices
+    on the axis; > 0 iff the shapes overlap."""
     axis: jax.Array
     """(D,) float: unit axis of that depth, from a towards b, in a's frame."""
+    feature: jax.Array
+    """() int32: FACE_OF_A, FACE_OF_B or EDGE_PAIR: the kind of candidate that gave the axis."""
 
 
 def sat_search(frame: PairFrame, prune: bool = True) -> SatAxis:
     """The deepest-separating candidate axis of a prepared pair and its depth.
 
-    With Gauss-map edge pairs, the winner's depth is measured again by projecting both
-    shapes on its unit axis: exactly the depth its normal gives (the Gauss-map shortcut loses
-    float32 digits). Projected axes need no such fix."""
-    groups = _candidate_groups(frame, prune)
-    depth, axis = _best_axis(groups)
-    if len(groups) > 1:
-        # Both senses, as the projected groups measure them: the Gauss-map sense comes from
+    A Gauss-map winner's depth is measured again by projecting both shapes on its unit axis
+    (the moment form loses float32 digits), so every returned depth is a projection's.
+    Projected candidates need no such step."""
+    found = candidates(frame, prune)
+    depth, axis, feature = _smallest(_winners(found))
+    if found.gauss_map is not None:
+        # Both senses, as the projected group measures them: the Gauss-map sense comes from
         # the sign of a dot product that vanishes where edges meet at a vertex, and XLA may
-        # round it differently in `_gauss_map_axis` than in the depth (it did for batches
+        # round it differently in `GaussMapAxes.axis` than in the depth (it did for batches
         # over about 1,400 pairs), which turned the axis around and gave the depth
         # s(-u) = width + gap instead of s(u).
         along = _support(axis, frame.a.vertices) + _support(-axis, frame.b_vertices)
@@ -228,7 +289,7 @@ def sat_search(frame: PairFrame, prune: bool = True) -> SatAxis:
         turned = against < along
         depth = jnp.where(turned, against, along)
         axis = jnp.where(turned, -axis, axis)
-    return SatAxis(depth, axis)
+    return SatAxis(depth, axis, feature)
 
 
 def sat_runner_up(frame: PairFrame, min_angle) -> jax.Array:
@@ -237,19 +298,9 @@ def sat_runner_up(frame: PairFrame, min_angle) -> jax.Array:
     candidates near the winner are masked (padding repeats a face normal, and parallel faces
     of a and b give one direction); a Gauss-map group offers its best pair unless that is near
     the winner. With no such candidate, the winner's own axis."""
-    groups = _candidate_groups(frame)
-    _, winner = _best_axis(groups)
-    min_cosine = jnp.cos(min_angle)
-    candidates = []
-    for depths, axis_of, cosine_to in groups:
-        if cosine_to is not None:
-            depths = jnp.where(cosine_to(winner) >= min_cosine, jnp.inf, depths)
-        depth, index = _winner(depths)
-        axis = axis_of(index)
-        if cosine_to is None:
-            depth = jnp.where(dot(axis, winner) >= min_cosine, jnp.inf, depth)
-        candidates.append((depth, axis))
-    best_depth, best_axis = _smallest(candidates)
+    found = candidates(frame)
+    _, winner, _ = _smallest(_winners(found))
+    best_depth, best_axis, _ = _smallest(_winners(found, winner, jnp.cos(min_angle)))
     return jnp.where(jnp.isfinite(best_depth), best_axis, winner)
 
 
@@ -301,8 +352,9 @@ def _world_aabb(shape: Polytope, pose: Pose) -> tuple[jax.Array, jax.Array]:
 
 
 def _min_depth(a, pose_a, b, pose_b) -> jax.Array:
-    groups = _candidate_groups(pair_frame(a, pose_a, b, pose_b))
-    return functools.reduce(jnp.minimum, [jnp.min(depths) for depths, _, _ in groups])
+    found = candidates(pair_frame(a, pose_a, b, pose_b))
+    groups = [found.projected] + ([] if found.gauss_map is None else [found.gauss_map])
+    return functools.reduce(jnp.minimum, [jnp.min(group.depths) for group in groups])
 
 
 @compiled_query(check_pair)

@@ -539,6 +539,25 @@ def test_cube_contacts(contact, padded):
     np.testing.assert_array_equal(hits[decided], depths[decided] > 0)
 
 
+@pytest.mark.parametrize("padded", [False, True], ids=["box", "box-as-hull8"])
+def test_sat_search_names_the_feature_of_its_axis(padded):
+    """`sat_search` says which kind of candidate gave the axis: an edge pair for the crossed
+    cubes, a's or b's face normal when only that shape's face is aligned with the contact."""
+    from jaxsat._pair import pair_frame
+    from jaxsat._sat import EDGE_PAIR, FACE_OF_A, FACE_OF_B, sat_search
+
+    cube = jaxsat.box([1.0, 1.0, 1.0], 8 if padded else None, dtype=np.float64)
+    expected = {"edge-edge": EDGE_PAIR, "vertex-face": FACE_OF_A, "face-vertex": FACE_OF_B}
+    for contact, feature in expected.items():
+        quaternion_a, quaternion_b, reach_a, reach_b = CONTACTS[contact]
+        for depth in (0.1, -0.1):
+            frame = pair_frame(cube, jaxsat.pose3([0.0, 0.0, 0.0], quaternion_a), cube,
+                               jaxsat.pose3([reach_a + reach_b - depth, 0, 0], quaternion_b))
+            found = sat_search(frame)
+            assert int(found.feature) == feature, (contact, depth)
+            np.testing.assert_allclose(found.depth, depth, atol=1e-12)
+
+
 @pytest.mark.parametrize("contact", ["edge-edge", "vertex-face"])
 def test_cube_contacts_perturbed(contact):
     """The same contacts with small random rotations: still exact against the oracle."""

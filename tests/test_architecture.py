@@ -1,0 +1,51 @@
+"""The package's seams: every module stands on the others' public names only."""
+
+from __future__ import annotations
+
+import ast
+import pathlib
+
+import jaxsat
+
+PACKAGE = pathlib.Path(jaxsat.__file__).parent
+
+
+def _crossing_private_names(path: pathlib.Path) -> list[str]:
+    """Underscore names that `path` takes from another jaxsat module: imported by name, or
+    read as an attribute of an imported module (`from jaxsat import _shapes as shapes`)."""
+    tree = ast.parse(path.read_text())
+    modules, found = {}, []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("jaxsat"):
+            for alias in node.names:
+                if node.module == "jaxsat":
+                    modules[alias.asname or alias.name] = alias.name
+                elif alias.name.startswith("_"):
+                    found.append(f"{node.module}.{alias.name}")
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                and node.value.id in modules and node.attr.startswith("_")):
+            found.append(f"{modules[node.value.id]}.{node.attr}")
+    return found
+
+
+def test_no_module_imports_another_modules_private_names():
+    crossing = {path.name: names for path in sorted(PACKAGE.glob("*.py"))
+                if path.name != "__init__.py" and (names := _crossing_private_names(path))}
+    assert crossing == {}
+
+
+def test_the_checker_sees_both_kinds_of_crossing(tmp_path):
+    """The check above can fail: it finds a private import and a private attribute."""
+    source = tmp_path / "module.py"
+    source.write_text("from jaxsat._shapes import _pad_rows\nfrom jaxsat import _shapes as s\n"
+                      "x = s._padded_fields\ny = s.stack\n")
+    assert _crossing_private_names(source) == ["jaxsat._shapes._pad_rows", "_shapes._padded_fields"]
+
+
+def test_public_api_is_listed_once_in_all():
+    names = [name for name in dir(jaxsat) if not name.startswith("_")]
+    assert len(jaxsat.__all__) == len(set(jaxsat.__all__))
+    assert set(jaxsat.__all__) <= set(names)
+    modules = {"jaxsat"} | {path.stem for path in PACKAGE.glob("_*.py")}
+    assert set(names) - set(jaxsat.__all__) <= modules | {"annotations"}
