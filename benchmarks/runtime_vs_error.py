@@ -224,7 +224,7 @@ def make_kernel(smooth: bool, gradient: bool, chunk: int):
     run as a `lax.map` over chunks of `chunk` pairs."""
 
     def one(params_a, params_b, a, b, tau):
-        smoothing = tau if smooth else 0.0  # exact: the Python 0.0 selects the exact path
+        smoothing = tau if smooth else None
         return jaxsat.signed_distance(a, make_pose(params_a), b, make_pose(params_b),
                                       smoothing=smoothing)
 

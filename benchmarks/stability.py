@@ -14,7 +14,7 @@ of up to 8 points padded to 8 vertices):
   1e6 (float64 only), about half of them overlapping.
 
 Every input is rounded to float32 first, so both dtypes see the same configuration. For every
-configuration, the exact (smoothing=0) and smooth (smoothing = TAU x scale) values and their
+configuration, the exact (smoothing=None) and smooth (smoothing = TAU x scale) values and their
 gradients with respect to both poses' parameters are computed with `jax.jit(jax.vmap(...))`
 in chunks, in float32 and float64.
 
@@ -282,7 +282,7 @@ def _one(pool, index_a, index_b, params_a, params_b, tau):
     a = jax.tree.map(lambda x: x[index_a], pool)
     b = jax.tree.map(lambda x: x[index_b], pool)
     out = {}
-    for name, smoothing in (("exact", 0.0), ("smooth", tau)):
+    for name, smoothing in (("exact", None), ("smooth", tau)):
         f = lambda pa, pb, s=smoothing: jaxsat.signed_distance(  # noqa: E731
             a, _pose(pa), b, _pose(pb), smoothing=s)
         value, (grad_a, grad_b) = jax.value_and_grad(f, argnums=(0, 1))(params_a, params_b)

@@ -79,9 +79,10 @@ def query_batch(query: Callable, a, pose_a, b, pose_b, *, chunk_size: int | None
       a multiple of their number, else replicated (JAX arrays cannot be sharded unevenly).
 
     Raises:
-      ValueError: query not callable, an argument neither a shape nor a Pose, more than one
-        batch axis, batch lengths that differ, no batched argument, a chunk_size that is not
-        a positive int, or bad devices.
+      TypeError: query not callable, an argument neither a shape nor a Pose, a chunk_size
+        that is not None or an int, or devices that are not None, an int or jax devices.
+      ValueError: more than one batch axis, batch lengths that differ, no batched argument,
+        a chunk_size below 1, or a device count or list that does not fit.
     """
     _check_query(query)
     chunk_size, mesh = _check_chunk_size(chunk_size), _mesh(devices)
@@ -248,7 +249,7 @@ def _empty_result(apply, items, shared):
 
 def _check_query(query) -> None:
     if not callable(query):
-        raise ValueError("query must be a callable (a, pose_a, b, pose_b) -> pytree, got "
+        raise TypeError("query must be a callable (a, pose_a, b, pose_b) -> pytree, got "
                          f"{type(query).__name__}; bind keyword arguments with functools.partial")
 
 
@@ -259,7 +260,9 @@ def _is_int(value) -> bool:
 def _check_chunk_size(chunk_size) -> int | None:
     if chunk_size is None:
         return None
-    if not _is_int(chunk_size) or chunk_size < 1:
+    if not _is_int(chunk_size):
+        raise TypeError(f"chunk_size must be None or a positive int, got {chunk_size!r}")
+    if chunk_size < 1:
         raise ValueError(f"chunk_size must be None or a positive int, got {chunk_size!r}")
     return int(chunk_size)
 
@@ -277,11 +280,13 @@ def _mesh(devices) -> Mesh | None:
     if isinstance(devices, np.ndarray):  # e.g. an existing mesh's `devices`
         devices = list(devices.flat)
     if isinstance(devices, (str, bytes)) or not isinstance(devices, Sequence):
-        raise ValueError("devices must be None, an int or a sequence of jax devices, got "
+        raise TypeError("devices must be None, an int or a sequence of jax devices, got "
                          f"{type(devices).__name__}")
     chosen = list(devices)
-    if not chosen or not all(isinstance(device, jax.Device) for device in chosen):
-        raise ValueError(f"devices must be a non-empty sequence of jax devices, got {devices!r}")
+    if not all(isinstance(device, jax.Device) for device in chosen):
+        raise TypeError(f"devices must be a sequence of jax devices, got {devices!r}")
+    if not chosen:
+        raise ValueError("devices must not be empty")
     if len(set(chosen)) != len(chosen):
         raise ValueError(f"devices must not repeat a device, got {chosen}")
     return Mesh(np.array(chosen), (PAIR_AXIS,))
@@ -295,7 +300,7 @@ def _batch_shape(arg, name: str) -> tuple[int, ...]:
                              f"{arg.rotation.shape} with different batch shapes")
         return tuple(shape)
     if not hasattr(arg, "batch_shape"):
-        raise ValueError(f"{name} must be a shape (with a batch_shape, like jaxsat.Polytope) or "
+        raise TypeError(f"{name} must be a shape (with a batch_shape, like jaxsat.Polytope) or "
                          f"a jaxsat.Pose, got {type(arg).__name__}")
     return tuple(arg.batch_shape)
 

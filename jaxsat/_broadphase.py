@@ -59,7 +59,7 @@ def world_aabbs(shapes: Polytope, poses: Pose) -> tuple[jax.Array, jax.Array]:
       real vertex, so it never widens a box).
     """
     if not isinstance(shapes, Polytope) or not isinstance(poses, Pose):
-        raise ValueError("world_aabbs takes a jaxsat.Polytope and a jaxsat.Pose")
+        raise TypeError("world_aabbs takes a jaxsat.Polytope and a jaxsat.Pose")
     pose_batch = poses.translation.shape[:-1]
     if shapes.batch_shape != pose_batch or shapes.dim != poses.dim:
         raise ValueError(f"shapes (batch {shapes.batch_shape}, {shapes.dim}D) and poses (batch "

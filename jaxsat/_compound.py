@@ -89,7 +89,7 @@ def _as_piece(piece, index: int, max_vertices: int | None) -> Polytope:
             raise ValueError(f"piece {index} is a batched Polytope; pass unbatched pieces")
         return piece
     if isinstance(piece, Compound):
-        raise ValueError(f"piece {index} is a Compound; pass its convex pieces instead")
+        raise TypeError(f"piece {index} is a Compound; pass its convex pieces instead")
     points = np.asarray(piece)
     if points.ndim != 2 or points.shape[-1] not in (2, 3):
         raise ValueError(f"piece {index} must be a jaxsat.Polytope or an (N, 2) or (N, 3) "
@@ -145,8 +145,9 @@ def compound(pieces: Sequence[Polytope | np.ndarray], max_pieces: int | None = N
         largest piece only.
 
     Raises:
-      ValueError: no pieces, a piece that is not a convex Polytope or vertex array (or that
-        `polygon` / `polyhedron` rejects), pieces mixing 2D and 3D or dtypes, more pieces than
+      TypeError: a piece that is a Compound, or a non-numeric vertex array.
+      ValueError: no pieces, a vertex array that is not (N, 2) or (N, 3) (or that `polygon` /
+        `polyhedron` rejects), pieces mixing 2D and 3D or dtypes, more pieces than
         `max_pieces`, or a piece with more (padded) vertices than `max_vertices`.
     """
     pieces = [pieces] if isinstance(pieces, Polytope) else list(pieces)
@@ -195,7 +196,7 @@ def _as_compound(shape, name: str) -> Compound:
         # Plain indexing and a NumPy mask: no eager JAX op for concrete inputs.
         pieces = jax.tree.map(lambda leaf: leaf[None], shape)
         return Compound(pieces=pieces, piece_mask=np.ones(shape.batch_shape + (1,), bool))
-    raise ValueError(f"{name} must be a jaxsat.Compound or jaxsat.Polytope, got "
+    raise TypeError(f"{name} must be a jaxsat.Compound or jaxsat.Polytope, got "
                      f"{type(shape).__name__}")
 
 
@@ -211,8 +212,8 @@ def stack_compounds(compounds: Sequence[Compound | Polytope]) -> Compound:
       `jax.vmap`.
 
     Raises:
-      ValueError: an empty sequence, an entry that is not an unbatched Compound or Polytope,
-        or a mix of 2D and 3D or of dtypes.
+      TypeError: an entry that is not a Compound or Polytope.
+      ValueError: an empty sequence, a batched entry, or a mix of 2D and 3D or of dtypes.
     """
     compounds = [_as_compound(entry, f"stack_compounds entry {index}")
                  for index, entry in enumerate(compounds)]
@@ -244,7 +245,7 @@ def _check_query(a: Compound, pose_a: Pose, b: Compound, pose_b: Pose) -> None:
     """Static checks (shapes only), so they also run under jit and vmap."""
     for name, pose in (("pose_a", pose_a), ("pose_b", pose_b)):
         if not isinstance(pose, Pose):
-            raise ValueError(f"{name} must be a jaxsat.Pose, got {type(pose).__name__}")
+            raise TypeError(f"{name} must be a jaxsat.Pose, got {type(pose).__name__}")
     check_one_pair(a, pose_a, b, pose_b)
 
 

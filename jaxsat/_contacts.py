@@ -183,8 +183,9 @@ def contacts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
       is below -margin; a point is valid when its depth is at least -margin (within rounding).
 
     Raises:
-      ValueError: a or b is not a Polytope, a pose is not a Pose, batched inputs, mixed
-        dimensions, or a concrete margin that is not a non-negative finite number.
+      TypeError: a or b is not a Polytope, a pose is not a Pose, or margin is not a number.
+      ValueError: batched inputs, mixed dimensions, or a concrete margin that is negative,
+        NaN or infinite.
     """
     return _manifold(a, pose_a, b, pose_b, margin)[0]
 
@@ -193,9 +194,11 @@ def _check_margin(margin) -> None:
     if isinstance(margin, jax.core.Tracer):
         return  # traced margins are the caller's business
     try:
+        if margin is None or isinstance(margin, (str, bytes, bool, np.bool_)):
+            raise TypeError
         value = np.asarray(margin, dtype=np.float64)
     except (TypeError, ValueError) as error:
-        raise ValueError(f"margin must be a number, got {type(margin).__name__}") from error
+        raise TypeError(f"margin must be a number, got {type(margin).__name__}") from error
     if value.shape != () or not np.isfinite(value) or value < 0:
         raise ValueError(f"margin must be a non-negative finite number, got {margin!r}")
 

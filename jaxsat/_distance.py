@@ -1,8 +1,8 @@
 """Public distance queries: `signed_distance` (exact or smooth) and `closest_points`.
 
 The exact search is `_closest` (the SAT, then GJK in 3D or the support faces in 2D), the
-smooth one `_smoothing`; this module checks the inputs, picks the path (statically: a concrete
-smoothing of 0 is exact) and runs it compiled (see `_pair.compiled_query`).
+smooth one `_smoothing`; this module checks the inputs, picks the path (statically, from
+whether `smoothing` is None) and runs it compiled (see `_pair.compiled_query`).
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxsat._closest import exact_distance, signed_distance_of_witnesses, witness
 from jaxsat._kernels import rotate
@@ -50,31 +51,38 @@ def _smooth_signed_distance(a, pose_a, b, pose_b, tau) -> jax.Array:
     return smooth_signed_distance(frame, jnp.asarray(tau, frame.dtype))
 
 
-def _check_smoothing(smoothing):
-    """A concrete number must be finite and >= 0; a traced value is taken as given. Returns
-    whether the exact path applies: a concrete 0 (a traced tau takes the smooth path)."""
-    if isinstance(smoothing, jax.core.Tracer):
-        return False
-    value = float(smoothing)
-    if not value >= 0.0 or value == float("inf"):
-        raise ValueError(f"smoothing must be a finite length >= 0, got {smoothing!r}")
-    return value == 0.0
+def _check_smoothing(smoothing) -> None:
+    """None or a scalar number; a concrete one must be finite and > 0 (a traced value is
+    taken as given: the smooth path floors it)."""
+    if smoothing is None or isinstance(smoothing, jax.core.Tracer):
+        return
+    if isinstance(smoothing, (bool, np.bool_)) or not isinstance(
+            smoothing, (int, float, np.number, np.ndarray, jax.Array)):
+        raise TypeError("smoothing must be None (exact) or a number (a length tau > 0), got "
+                        f"{type(smoothing).__name__}")
+    value = np.asarray(smoothing)
+    if value.shape != () or not np.issubdtype(value.dtype, np.number):
+        raise TypeError(f"smoothing must be a scalar number, got an array of shape {value.shape}"
+                        f" and dtype {value.dtype}")
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError("smoothing must be a finite length > 0 (use smoothing=None for the "
+                         f"exact distance), got {smoothing!r}")
 
 
 def signed_distance(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
-                    smoothing: float | jax.Array = 0.0) -> jax.Array:
+                    smoothing: float | jax.Array | None = None) -> jax.Array:
     """Signed distance between two convex shapes: > 0 apart, < 0 overlapping.
 
     Args:
       a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches).
       pose_a, pose_b: their poses.
-      smoothing: tau, a length >= 0. 0 gives the exact value: the Euclidean distance when the
-        shapes are apart, minus the exact penetration depth when they overlap. tau > 0 gives
-        a smooth approximation that satisfies
+      smoothing: None (the default) for the exact value: the Euclidean distance when the
+        shapes are apart, minus the exact penetration depth when they overlap. A length
+        tau > 0 for a smooth approximation that satisfies
         exact - smoothing_error_bound(a, b) * tau <= smooth <= exact; see
-        `smoothing_error_bound` for how to pick tau. A concrete 0 takes the exact path; a
-        traced tau always takes the smooth one, floored at a few ulps of the shapes' size (so
-        a traced 0 gives the exact value up to rounding, not NaN).
+        `smoothing_error_bound` for how to pick tau. The choice is static: any number,
+        concrete or traced, takes the smooth path (a traced tau is floored at a few ulps of
+        the shapes' size, so a traced 0 gives the exact value up to rounding, not NaN).
 
     Returns:
       () float in the common dtype of the inputs. Gradients with respect to poses and to
@@ -86,11 +94,14 @@ def signed_distance(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
       gap along its best axis (see `_smoothing`): continuous wherever the shapes are apart.
 
     Raises:
-      ValueError: a or b is not a Polytope, a pose is not a Pose, batched inputs, mixed
-        dimensions, or a concrete smoothing that is negative, NaN or infinite.
+      TypeError: a or b is not a Polytope, a pose is not a Pose, or smoothing is neither
+        None nor a scalar number.
+      ValueError: batched inputs, mixed dimensions, or a concrete smoothing that is not a
+        finite number > 0.
     """
     check_pair(a, pose_a, b, pose_b)
-    if _check_smoothing(smoothing):
+    _check_smoothing(smoothing)
+    if smoothing is None:
         return _exact_signed_distance(a, pose_a, b, pose_b)
     return _smooth_signed_distance(a, pose_a, b, pose_b, smoothing)
 

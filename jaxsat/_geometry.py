@@ -18,12 +18,13 @@ def as_point_array(points, dim: int | None, name: str) -> np.ndarray:
     """Validate a (N, D) array of finite coordinates and return it as float64.
 
     Raises:
-      ValueError: wrong shape, non-numeric, NaN or inf entries.
+      TypeError: non-numeric input.
+      ValueError: wrong shape, NaN or inf entries.
     """
     try:
         array = np.asarray(points, dtype=np.float64)
     except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be a numeric array, got {type(points).__name__}") from error
+        raise TypeError(f"{name} must be a numeric array, got {type(points).__name__}") from error
     expected = "(N, 2) or (N, 3)" if dim is None else f"(N, {dim})"
     wrong_dim = dim is not None and array.ndim == 2 and array.shape[1] != dim
     if array.ndim != 2 or wrong_dim or array.shape[1] not in (2, 3):

@@ -23,12 +23,12 @@ __all__ = ["PairFrame", "cast_pair", "check_one_pair", "check_pair", "compiled_q
 
 
 def check_pair(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> None:
-    """Raise ValueError unless a and b are Polytopes and the poses Poses, unbatched, of one
-    dimension."""
+    """Raise TypeError unless a and b are Polytopes and the poses Poses; ValueError unless
+    they are unbatched and of one dimension."""
     for name, value, kind in (("a", a, Polytope), ("b", b, Polytope),
                               ("pose_a", pose_a, Pose), ("pose_b", pose_b, Pose)):
         if not isinstance(value, kind):
-            raise ValueError(f"{name} must be a jaxsat.{kind.__name__}, got {type(value).__name__}")
+            raise TypeError(f"{name} must be a jaxsat.{kind.__name__}, got {type(value).__name__}")
     check_one_pair(a, pose_a, b, pose_b)
 
 

@@ -307,7 +307,7 @@ def sat_runner_up(frame: PairFrame, min_angle) -> jax.Array:
 def _check_penetration(a, pose_a, b, pose_b, *, prune=True) -> None:
     check_pair(a, pose_a, b, pose_b)
     if not isinstance(prune, bool):
-        raise ValueError(f"prune must be True or False, got {prune!r}")
+        raise TypeError(f"prune must be True or False, got {prune!r}")
 
 
 @compiled_query(_check_penetration, static_argnames=("prune",))

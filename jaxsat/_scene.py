@@ -52,7 +52,7 @@ class SceneCollisions:
 
 def _check_scene(shapes, poses, level):
     if not isinstance(shapes, Polytope) or not isinstance(poses, Pose):
-        raise ValueError("collide takes a stacked jaxsat.Polytope and batched jaxsat.Pose")
+        raise TypeError("collide takes a stacked jaxsat.Polytope and batched jaxsat.Pose")
     if len(shapes.batch_shape) != 1:
         raise ValueError("collide needs shapes stacked along exactly one leading axis (N, ...), "
                          f"got batch shape {shapes.batch_shape}")

@@ -147,7 +147,7 @@ def _pad_rows(rows: np.ndarray, size: int, name: str) -> tuple[np.ndarray, np.nd
 
 def _maybe_unique(directions: np.ndarray, unique_axes: bool) -> np.ndarray:
     if not isinstance(unique_axes, bool):
-        raise ValueError(f"unique_axes must be True or False, got {unique_axes!r}")
+        raise TypeError(f"unique_axes must be True or False, got {unique_axes!r}")
     return geometry.unique_directions(directions) if unique_axes else directions
 
 
@@ -330,15 +330,19 @@ def stack(shapes: Sequence[Polytope]) -> Polytope:
       `jax.vmap`.
 
     Raises:
-      ValueError: an empty sequence, an entry that is not an unbatched Polytope, or a mix of 2D
-        and 3D shapes or of dtypes.
+      TypeError: an entry that is not a Polytope.
+      ValueError: an empty sequence, a batched entry, or a mix of 2D and 3D shapes or of
+        dtypes.
     """
     shapes = list(shapes)
     if not shapes:
         raise ValueError("stack needs at least one shape")
     for index, shape in enumerate(shapes):
-        if not isinstance(shape, Polytope) or shape.batch_shape:
-            raise ValueError(f"stack entry {index} is not an unbatched jaxsat.Polytope")
+        if not isinstance(shape, Polytope):
+            raise TypeError(f"stack entry {index} is a {type(shape).__name__}, not a "
+                            "jaxsat.Polytope")
+        if shape.batch_shape:
+            raise ValueError(f"stack entry {index} is batched {shape.batch_shape}")
     dims = {shape.dim for shape in shapes}
     if len(dims) > 1:
         raise ValueError("stack cannot mix 2D and 3D shapes")

@@ -388,7 +388,7 @@ def smoothing_error_bound(a: Polytope, b: Polytope) -> jax.Array:
     batches (broadcasting).
     """
     if not isinstance(a, Polytope) or not isinstance(b, Polytope):
-        raise ValueError("a and b must be jaxsat.Polytope shapes")
+        raise TypeError("a and b must be jaxsat.Polytope shapes")
     if a.dim != b.dim:
         raise ValueError(f"a and b must share one dimension, got {a.dim}D and {b.dim}D")
     vertex_pairs = jnp.sum(a.vertex_mask, axis=-1) * jnp.sum(b.vertex_mask, axis=-1)

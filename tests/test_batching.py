@@ -249,10 +249,16 @@ BAD_CALLS = {
 }
 
 
-@pytest.mark.parametrize("call", BAD_CALLS.values(), ids=BAD_CALLS.keys())
-def test_value_errors(call, bad):
-    with pytest.raises(ValueError):
-        call(bad)
+WRONG_TYPES = {"query not callable", "query_pairs query not callable", "chunk_size float",
+               "chunk_size bool", "devices not devices", "devices a string",
+               "argument not a shape"}
+
+
+@pytest.mark.parametrize("name", BAD_CALLS)
+def test_bad_arguments_raise(name, bad):
+    """TypeError for an argument of the wrong type, ValueError for a bad value."""
+    with pytest.raises(TypeError if name in WRONG_TYPES else ValueError):
+        BAD_CALLS[name](bad)
 
 
 _SHARDED_SNIPPET = """

@@ -158,5 +158,5 @@ def test_broad_phase_rejects_bad_input():
         jaxsat.broad_phase(low, low + 1, capacity=4, body_ids=jnp.ones(3, jnp.int32))
     with pytest.raises(ValueError, match="body_ids"):
         jaxsat.broad_phase(low, low + 1, capacity=4, body_ids=jnp.ones(4))
-    with pytest.raises(ValueError, match="Polytope"):
+    with pytest.raises(TypeError, match="Polytope"):
         jaxsat.world_aabbs(low, low)

@@ -600,7 +600,8 @@ BAD_COMPOUNDS = {
     "concave piece": (lambda: jaxsat.compound([L_SHAPE]), "not convex"),
     "batched piece": (lambda: jaxsat.compound([jaxsat.stack([jaxsat.box([1.0, 1.0])])]),
                       "batched"),
-    "compound piece": (lambda: jaxsat.compound([jaxsat.compound([_square()])]), "Compound"),
+    "compound piece": (lambda: jaxsat.compound([jaxsat.compound([_square()])]), "Compound",
+                       TypeError),
     "flat piece": (lambda: jaxsat.compound([np.zeros(4)]), "vertex array"),
     "bad polygon": (lambda: jaxsat.concave_polygon([[0, 0], [1, 1], [1, 0], [0, 1]]),
                     "self-intersecting"),
@@ -618,14 +619,16 @@ BAD_COMPOUNDS = {
                      "mix dtypes"),
     "stack batched": (lambda: jaxsat.stack_compounds([jaxsat.stack_compounds([
         jaxsat.compound([_square()])])]), "batched"),
-    "stack other": (lambda: jaxsat.stack_compounds([_square()]), "Compound or jaxsat.Polytope"),
+    "stack other": (lambda: jaxsat.stack_compounds([np.zeros((4, 2))]),
+                    "Compound or jaxsat.Polytope", TypeError),
 }
 
 
 @pytest.mark.parametrize("name", sorted(BAD_COMPOUNDS))
 def test_bad_construction_raises(name):
-    build, message = BAD_COMPOUNDS[name]
-    with pytest.raises(ValueError, match=message):
+    """TypeError for an argument of the wrong type, ValueError for a bad value."""
+    build, message, *error = BAD_COMPOUNDS[name]
+    with pytest.raises(error[0] if error else ValueError, match=message):
         build()
 
 
@@ -642,9 +645,9 @@ def test_bad_queries_raise():
             query(shape, identity, shape, batched_pose)
         with pytest.raises(ValueError, match="one pair"):
             query(jaxsat.stack([jaxsat.box([1.0, 1.0])] * 2), identity, shape, identity)
-        with pytest.raises(ValueError, match="Compound or jaxsat.Polytope"):
+        with pytest.raises(TypeError, match="Compound or jaxsat.Polytope"):
             query(L_SHAPE, identity, shape, identity)
-        with pytest.raises(ValueError, match="jaxsat.Pose"):
+        with pytest.raises(TypeError, match="jaxsat.Pose"):
             query(shape, identity, shape, np.zeros(3))
         with pytest.raises(ValueError, match="one dimension"):
             query(shape, identity, shape_3d, identity_3d)

@@ -635,11 +635,13 @@ def test_output_dtypes_follow_inputs(dim):
         assert out.valid.shape == (points,) and out.valid.dtype == np.bool_
 
 
-@pytest.mark.parametrize("margin", [-0.1, np.nan, np.inf, [0.1, 0.2], "wide", None])
-def test_bad_margin_raises(margin):
+@pytest.mark.parametrize(("margin", "error"), [
+    (-0.1, ValueError), (np.nan, ValueError), (np.inf, ValueError), ([0.1, 0.2], ValueError),
+    ("wide", TypeError), (None, TypeError)])
+def test_bad_margin_raises(margin, error):
     box = jaxsat.box([1.0, 1.0, 1.0])
     pose = jaxsat.Pose.identity(3)
-    with pytest.raises(ValueError, match="margin"):
+    with pytest.raises(error, match="margin"):
         jaxsat.contacts(box, pose, box, pose, margin=margin)
 
 
@@ -655,9 +657,9 @@ def test_bad_inputs_raise():
     pose2, pose3 = jaxsat.Pose.identity(2), jaxsat.Pose.identity(3)
     with pytest.raises(ValueError, match="dimension"):
         jaxsat.contacts(box2, pose2, box3, pose3)
-    with pytest.raises(ValueError, match="Polytope"):
+    with pytest.raises(TypeError, match="Polytope"):
         jaxsat.contacts(box3.vertices, pose3, box3, pose3)
-    with pytest.raises(ValueError, match="Pose"):
+    with pytest.raises(TypeError, match="Pose"):
         jaxsat.contacts(box3, None, box3, pose3)
     stacked = jaxsat.stack([box3, box3])
     with pytest.raises(ValueError, match="vmap"):

@@ -784,12 +784,40 @@ def _unit_pair(dim: int):
     return jaxsat.box([1.0, 1.0, 1.0]), jaxsat.pose3(np.zeros(3), IDENTITY)
 
 
-@pytest.mark.parametrize("smoothing", [-1.0, -1e-300, np.nan, np.inf, -np.inf, np.float64(-2.0),
-                                       jnp.array(np.nan)], ids=repr)
+@pytest.mark.parametrize("smoothing", [0.0, -0.0, 0, -1.0, -1e-300, np.nan, np.inf, -np.inf,
+                                       np.float64(-2.0), jnp.array(np.nan), jnp.array(0.0)],
+                         ids=repr)
 def test_bad_smoothing_raises(smoothing):
+    """A concrete smoothing must be a finite length > 0: the exact distance is asked for with
+    None, so a 0 cannot select it by accident."""
     square, pose = _unit_pair(2)
     with pytest.raises(ValueError, match="smoothing"):
         jaxsat.signed_distance(square, pose, square, pose, smoothing=smoothing)
+
+
+@pytest.mark.parametrize("smoothing", [True, "0.1", [0.1], np.ones(2), jnp.ones(2),
+                                       np.array("0.1")], ids=repr)
+def test_smoothing_of_the_wrong_type_raises(smoothing):
+    square, pose = _unit_pair(2)
+    with pytest.raises(TypeError, match="smoothing"):
+        jaxsat.signed_distance(square, pose, square, pose, smoothing=smoothing)
+
+
+def test_the_exact_path_is_chosen_by_none_alone():
+    """None is exact; every number, Python or traced, takes the smooth path, whose value is
+    below the exact one here (two squares apart diagonally: the soft extremes see more than
+    one vertex)."""
+    square, pose = _unit_pair(2)
+    apart = jaxsat.pose2(3.0, 3.0, 0.0)
+    exact = jaxsat.signed_distance(square, pose, square, apart)
+    np.testing.assert_allclose(exact, np.sqrt(2.0), rtol=1e-6)
+    assert jaxsat.signed_distance(square, pose, square, apart, smoothing=None) == exact
+    tau = 0.3
+    python_float = jaxsat.signed_distance(square, pose, square, apart, smoothing=tau)
+    traced = jax.jit(lambda t: jaxsat.signed_distance(square, pose, square, apart,
+                                                      smoothing=t))(tau)
+    assert python_float < exact - 1e-3
+    np.testing.assert_allclose(traced, python_float, rtol=1e-6)
 
 
 def test_mismatched_dimensions_raise():
@@ -822,9 +850,9 @@ def test_batched_inputs_without_vmap_raise():
 def test_wrong_argument_types_raise():
     cube, pose = _unit_pair(3)
     for query in (jaxsat.signed_distance, jaxsat.closest_points):
-        with pytest.raises(ValueError, match="Polytope"):
+        with pytest.raises(TypeError, match="Polytope"):
             query(cube.vertices, pose, cube, pose)
-        with pytest.raises(ValueError, match="Pose"):
+        with pytest.raises(TypeError, match="Pose"):
             query(cube, pose, cube, (pose.translation, pose.rotation))
-    with pytest.raises(ValueError, match="Polytope"):
+    with pytest.raises(TypeError, match="Polytope"):
         jaxsat.smoothing_error_bound(cube.vertices, cube)

@@ -865,9 +865,9 @@ def test_batched_inputs_without_vmap_raise(query):
 @pytest.mark.parametrize("query", [jaxsat.penetration, jaxsat.intersects])
 def test_wrong_argument_types_raise(query):
     cube, pose = _single_3d()
-    with pytest.raises(ValueError, match="Polytope"):
+    with pytest.raises(TypeError, match="Polytope"):
         query(cube.vertices, pose, cube, pose)
-    with pytest.raises(ValueError, match="Pose"):
+    with pytest.raises(TypeError, match="Pose"):
         query(cube, pose, cube, (pose.translation, pose.rotation))
 
 
@@ -1012,7 +1012,7 @@ def test_prune_false_changes_no_overlap_result(name, dtype):
 @pytest.mark.parametrize("prune", [1, 0, None, "no", 1.0])
 def test_non_bool_prune_raises(prune):
     cube, pose = jaxsat.box([1.0, 1.0, 1.0]), jaxsat.pose3(np.zeros(3), [1.0, 0.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match="prune"):
+    with pytest.raises(TypeError, match="prune"):
         jaxsat.penetration(cube, pose, cube, pose, prune=prune)
 
 

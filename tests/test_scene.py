@@ -134,7 +134,7 @@ def test_collide_rejects_bad_input():
         jaxsat.collide(jaxsat.box([1.0, 1.0]), jaxsat.pose2(0.0, 0.0, 0.0), capacity=8)
     with pytest.raises(ValueError, match="capacity"):
         jaxsat.collide(shapes, poses, capacity=-1)
-    with pytest.raises(ValueError, match="Polytope"):
+    with pytest.raises(TypeError, match="Polytope"):
         jaxsat.collide(poses, shapes, capacity=8)
 
 

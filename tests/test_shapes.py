@@ -461,8 +461,14 @@ BAD_POLYGONS = {
     "bow-tie": ([[0, 0], [2, 2], [2, 0], [0, 1]], "not convex|self-intersecting"),
     "symmetric-bow-tie": ([[0, 0], [1, 1], [1, 0], [0, 1]],
                           "not convex|self-intersecting|zero area"),
-    "strings": ("abc", "numeric"),
 }
+
+
+def test_non_numeric_vertices_raise_type_error():
+    with pytest.raises(TypeError, match="numeric"):
+        jaxsat.polygon("abc")
+    with pytest.raises(TypeError, match="numeric"):
+        jaxsat.polyhedron([["a", "b", "c"]] * 4)
 
 
 @pytest.mark.parametrize("name", list(BAD_POLYGONS))
@@ -542,9 +548,9 @@ def test_bad_stack_raises():
         jaxsat.stack([cube, jaxsat.regular_polygon(5, 1.0)])
     with pytest.raises(ValueError, match="dtypes"):
         jaxsat.stack([square, jaxsat.box([1.0, 1.0], dtype=np.float32)])
-    with pytest.raises(ValueError, match="unbatched"):
+    with pytest.raises(ValueError, match="batched"):
         jaxsat.stack([jaxsat.stack([square])])
-    with pytest.raises(ValueError, match="unbatched"):
+    with pytest.raises(TypeError, match="not a jaxsat.Polytope"):
         jaxsat.stack([square, SQUARE])
 
 
@@ -669,5 +675,5 @@ def test_unique_axes_false_gives_the_same_penetration_hulls():
 def test_non_bool_unique_axes_raises(unique_axes):
     for constructor, points in ((jaxsat.polygon, SQUARE), (jaxsat.polyhedron, CUBE),
                                 (jaxsat.box, [1.0, 2.0]), (jaxsat.box, [1.0, 2.0, 3.0])):
-        with pytest.raises(ValueError, match="unique_axes"):
+        with pytest.raises(TypeError, match="unique_axes"):
             constructor(points, unique_axes=unique_axes)

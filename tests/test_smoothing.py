@@ -803,12 +803,13 @@ def test_bound_on_batches():
 
 
 def test_bound_rejects_mismatched_shapes():
-    """Shapes of different dimensions, or something other than a Polytope: ValueError."""
+    """Shapes of different dimensions: ValueError; something other than a Polytope:
+    TypeError."""
     square, cube = jaxsat.box([1.0, 1.0]), jaxsat.box([1.0, 1.0, 1.0])
     for a, b in ((square, cube), (cube, square)):
         with pytest.raises(ValueError, match="dimension"):
             jaxsat.smoothing_error_bound(a, b)
-    with pytest.raises(ValueError, match="Polytope"):
+    with pytest.raises(TypeError, match="Polytope"):
         jaxsat.smoothing_error_bound(square, np.zeros((4, 2)))
 
 
@@ -835,14 +836,14 @@ def test_traced_tau_under_jit():
 
 
 def _zero_smoothing(a, params_a, b, params_b):
-    return jaxsat.signed_distance(a, make_pose(params_a), b, make_pose(params_b), smoothing=0)
+    return jaxsat.signed_distance(a, make_pose(params_a), b, make_pose(params_b))
 
 
 zero_batch = jax.jit(jax.vmap(_zero_smoothing))
 
 
 def test_zero_smoothing_is_exact():
-    """smoothing=0 is the exact value (the oracle's); a small tau is close to it, and
+    """smoothing=None is the exact value (the oracle's); a small tau is close to it, and
     differs from it for most pairs (for some, every term but the largest underflows)."""
     rng = np.random.default_rng(62)
     shapes = pool("poly8", np.float64)

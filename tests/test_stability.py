@@ -3,7 +3,7 @@
 A named catalogue of degenerate configurations (identical shapes, exact contacts of every
 feature type, parallel and nearly parallel edges, padding, tiny and huge scales, shapes far
 from the origin, zero quaternions, nested shapes, large angles) is checked in float32 and
-float64, exact (smoothing=0) and smooth (smoothing=tau > 0), for:
+float64, exact (smoothing=None) and smooth (smoothing=tau > 0), for:
 
 * finite values, and finite jax.grad, jax.jacfwd and jax.jacrev with respect to the pose
   parameters (pose2's x, y, angle; pose3's translation and quaternion) and to the local
@@ -334,7 +334,7 @@ def _everything(params_a, params_b, a, b, tau, transforms):
     `transforms` (jacfwd, jacrev) with respect to both poses' parameters."""
     inputs = (params_a, params_b, a.vertices, b.vertices)
     out = {}
-    for name, smoothing in (("exact", 0.0), ("smooth", tau)):
+    for name, smoothing in (("exact", None), ("smooth", tau)):
         f = functools.partial(_distance, a=a, b=b, smoothing=smoothing)
         out[name] = {"value": f(*inputs), "grad": jax.grad(f, argnums=ARGNUMS)(*inputs)}
         for transform in transforms:
