@@ -63,7 +63,7 @@ def _distance(smoothing):
 
 KERNELS = {
     "penetration": lambda a, pa, b, pb: jaxsat.penetration(a, pa, b, pb).depth,
-    "exact": _distance(0.0),
+    "exact": _distance(None),
     "smooth": _distance(TAU),
 }
 

@@ -40,6 +40,7 @@ def decompose(polygon_vertices) -> list[np.ndarray]:
       `jaxsat.concave_polygon`, which does both.
 
     Raises:
+      TypeError: non-numeric vertices.
       ValueError: wrong shape, NaN/inf, fewer than 3 distinct vertices, zero area (collinear
         vertices), or a self-intersecting (or self-touching) boundary.
     """

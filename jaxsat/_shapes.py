@@ -202,6 +202,7 @@ def polygon(vertices, max_vertices: int | None = None, *, dtype=None,
         False keeps one per edge, as a textbook SAT does: the same answers, more work.
 
     Raises:
+      TypeError: non-numeric vertices, or a unique_axes that is not a bool.
       ValueError: wrong shape, NaN/inf, fewer than 3 distinct vertices, collinear vertices,
         non-convex or self-intersecting polygon, or more than `max_vertices` vertices.
     """
@@ -231,6 +232,7 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None,
         the same answers, more work (see benchmarks/skipping.py).
 
     Raises:
+      TypeError: non-numeric points, or a unique_axes that is not a bool.
       ValueError: wrong shape, NaN/inf, fewer than 4 distinct points, collinear or coplanar
         points, or more hull vertices than `max_vertices`.
     """

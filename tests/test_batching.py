@@ -69,6 +69,7 @@ def _assert_same(actual, expected, exact: bool = True):
             np.testing.assert_allclose(got, want, rtol=tolerance, atol=tolerance)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("query, dim, dtype, exact", [
     pytest.param(jaxsat.penetration, 2, np.float64, True, id="penetration-2d-float64"),
     pytest.param(jaxsat.penetration, 3, np.float32, True, id="penetration-3d-float32"),
@@ -103,6 +104,7 @@ def _depth_and_hit(a, pose_a, b, pose_b):
             "hit": jaxsat.intersects(a, pose_a, b, pose_b)}
 
 
+@pytest.mark.slow
 def test_mixed_batched_and_shared_arguments():
     """Unbatched arguments are shared by all pairs, like vmap's in_axes=None."""
     shapes, poses = _scene(2, 21, np.float32, seed=3)
@@ -119,6 +121,7 @@ def test_mixed_batched_and_shared_arguments():
     _assert_same(got, expected)
 
 
+@pytest.mark.slow
 def test_query_pairs_matches_vmap_over_gathered_shapes():
     """48 pairs: three whole chunks of 16 (the query_batch tests have overlapping ones)."""
     shapes, poses = _scene(2, 12, np.float32, seed=4)
@@ -133,6 +136,7 @@ def test_query_pairs_matches_vmap_over_gathered_shapes():
                                      chunk_size=CHUNK), expected)
 
 
+@pytest.mark.slow
 def test_inside_jit():
     """Under jit (chunk_size static) both functions give the eager results (the eager
     programs are those of the tests above, already compiled)."""
@@ -291,6 +295,7 @@ print("sharded ok")
 """
 
 
+@pytest.mark.slow
 def test_sharded_over_four_devices_matches_one():
     """4 CPU devices give bit-identical results to 1, for both functions, with and without
     chunks, for pair counts that 4 does and does not divide, eagerly and under jit."""

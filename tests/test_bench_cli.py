@@ -15,6 +15,8 @@ import pytest
 
 from jaxsat.__main__ import PEERS_SCRIPT, main, run_bench
 
+pytestmark = pytest.mark.slow  # the fast subset is -m "not slow"
+
 pytest.importorskip("scipy")  # the oracle of benchmarks/peers.py
 BENCHMARKS = pathlib.Path(__file__).resolve().parent.parent / "benchmarks"
 TINY = ["--cases", "2d-small", "--sizes", "64", "--error-pairs", "64", "--grad-pairs", "4",

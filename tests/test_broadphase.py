@@ -39,6 +39,7 @@ def _random_boxes(rng, count, dim, world, size_range, dtype=np.float64):
 _jit_broad_phase = jax.jit(jaxsat.broad_phase, static_argnames=("capacity", "candidate_capacity"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim,dtype,count,world,sizes", [
     (3, np.float64, 1, 1.0, (0.1, 0.2)),       # a single box: no pairs
     (2, np.float32, 2, 1.0, (0.9, 1.0)),       # two boxes that surely overlap
@@ -57,6 +58,7 @@ def test_broad_phase_equals_brute_force(dim, dtype, count, world, sizes):
     assert all(i < j for i, j in _found(result))
 
 
+@pytest.mark.slow
 def test_broad_phase_coincident_boxes_and_one_huge_box():
     """Degenerate layouts: every box in one cell, and one box spanning the world."""
     low = np.zeros((50, 3))
@@ -71,12 +73,14 @@ def test_broad_phase_coincident_boxes_and_one_huge_box():
     assert _found(result) == truth
 
 
+@pytest.mark.slow
 def test_touching_boxes_count_as_overlapping():
     low = jnp.array([[0.0, 0.0], [1.0, 0.0], [2.5, 0.0]])
     high = low + 1.0
     assert _found(_jit_broad_phase(low, high, capacity=4)) == {(0, 1)}
 
 
+@pytest.mark.slow
 def test_overflow_is_counted_never_silent():
     rng = np.random.default_rng(7)
     low, high = _random_boxes(rng, 300, 3, 5.0, (0.3, 1.0))
@@ -93,6 +97,7 @@ def test_overflow_is_counted_never_silent():
     assert _found(starved) <= truth
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, 3])
 def test_filters_equal_brute_force(dim):
     rng = np.random.default_rng(11)
@@ -110,6 +115,7 @@ def test_filters_equal_brute_force(dim):
     assert _found(result) == truth and int(result.count) == len(truth)
 
 
+@pytest.mark.slow
 def test_broad_phase_vmaps_over_scenes():
     rng = np.random.default_rng(5)
     scenes = [_random_boxes(rng, 120, 3, 4.0, (0.2, 0.8)) for _ in range(3)]
@@ -121,6 +127,7 @@ def test_broad_phase_vmaps_over_scenes():
         assert _found(one) == _brute_force_pairs(scene_low, scene_high)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, 3])
 def test_world_aabbs_match_numpy(dim):
     rng = np.random.default_rng(dim)

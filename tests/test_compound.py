@@ -298,11 +298,13 @@ def check_against_oracles(pool: Pool, rng, dtype, spread: float) -> None:
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
 def test_2d_concave_polygons_against_oracles(dtype):
     check_against_oracles(get_pool(2, dtype), np.random.default_rng(0), dtype, spread=2.0)
 
 
+@pytest.mark.slow
 def test_3d_compounds_against_oracle():
     """float64 only here: 3D float32 runs in test_polytope_in_slot_a_3d_float32 (each 3D
     compile costs seconds)."""
@@ -349,6 +351,7 @@ def _both_slots(plain, pose_plain, shape, pose_shape):
 both_slots = jax.jit(_both_slots)
 
 
+@pytest.mark.slow
 def test_polytope_in_either_slot_2d():
     """A plain Polytope acts as a one-piece compound, in slot a or b, against the oracle, and
     gives what the same box as a padded one-piece Compound gives."""
@@ -382,6 +385,7 @@ def test_polytope_in_either_slot_2d():
         np.testing.assert_allclose(both_plain.normal, direct.normal, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_polytope_in_slot_a_3d_float32():
     """3D float32: a plain box against the 3D compounds, penetration against the oracle."""
     rng = np.random.default_rng(6)
@@ -500,6 +504,7 @@ def oracle_gradient(piece_a, piece_b, params_a, params_b, step: float = 1e-6):
     return np.array([(depth(values + s) - depth(values - s)) / (2 * step) for s in steps])
 
 
+@pytest.mark.slow
 def test_gradients_are_the_winning_pairs():
     """d depth / d pose parameters is finite and equals the winning piece pair's gradient
     (the same compiled gradient on one-piece compounds holding just those two pieces), and

@@ -311,6 +311,7 @@ def check_random_pairs(pairs: Pairs):
     return result, details, reference
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
 @pytest.mark.parametrize("name", list(GENERATORS))
 def test_random_pairs(name, dtype):
@@ -326,6 +327,7 @@ def test_random_pairs(name, dtype):
         assert counts[4] > 0 and np.any(details.single_point[overlapping])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(GENERATORS))
 def test_random_pairs_with_margin(name):
     """Pairs moved along their normal to depths from 0.02 (overlap) to -0.08 (a gap), with a
@@ -587,6 +589,7 @@ def _select(pairs: Pairs, index) -> Pairs:
         margin=pairs.margin[index])
 
 
+@pytest.mark.slow
 def test_vmap_batch_shapes_and_single_pairs_agree():
     """Nested vmap over a (4, 16) batch, and a loop over single pairs (each alone in a batch
     of copies of itself), give the flat (64,) batch's results. (Eager calls are left out: the
@@ -606,6 +609,7 @@ def test_vmap_batch_shapes_and_single_pairs_agree():
             np.testing.assert_array_equal(got, np.broadcast_to(want[i], got.shape))
 
 
+@pytest.mark.slow
 def test_default_build_agrees():
     """The default XLA build (what users get) gives the fast-compiled build's manifolds up to
     rounding, and exactly penetration's normal, compiled separately."""
@@ -666,6 +670,7 @@ def test_bad_inputs_raise():
         jaxsat.contacts(stacked, pose3, box3, pose3)
 
 
+@pytest.mark.slow
 def test_degenerate_inputs_give_finite_results():
     """Coincident identical shapes, exact touching, padded shapes and scales from 1e-3 to 1e3
     (through check_random_pairs: finite values and every documented property)."""
@@ -700,6 +705,7 @@ def test_degenerate_inputs_give_finite_results():
         check_random_pairs(scaled)
 
 
+@pytest.mark.slow
 def test_gradients_are_finite():
     """Gradients of the valid depths and points with respect to b's pose, including at
     coincident and exactly touching shapes, are finite (2D: the 3D gradient takes 11 s to

@@ -344,7 +344,6 @@ def test_pieces_build_polygons():
 BAD = {
     "3d points": (np.zeros((4, 3)), "shape"),
     "flat array": (np.zeros(6), "shape"),
-    "strings": ([["a", "b"], ["c", "d"], ["e", "f"]], "numeric"),
     "nan": ([[0, 0], [1, 0], [np.nan, 1]], "NaN"),
     "inf": ([[0, 0], [1, 0], [np.inf, 1]], "NaN or inf"),
     "two points": ([[0, 0], [1, 0], [1, 0], [0, 0]], "at least 3 distinct"),
@@ -365,3 +364,8 @@ def test_bad_polygons_raise(name):
     vertices, message = BAD[name]
     with pytest.raises(ValueError, match=message):
         jaxsat.decompose(vertices)
+
+
+def test_non_numeric_vertices_raise_type_error():
+    with pytest.raises(TypeError, match="numeric"):
+        jaxsat.decompose([["a", "b"], ["c", "d"], ["e", "f"]])

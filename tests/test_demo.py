@@ -27,6 +27,7 @@ def restore_x64():
     jax.config.update("jax_enable_x64", before)
 
 
+@pytest.mark.slow
 def test_demo_prints_every_case_and_saves_a_png(tmp_path, capsys):
     pytest.importorskip("matplotlib")
     output = tmp_path / "demo.png"
@@ -60,6 +61,7 @@ def test_demo_without_matplotlib_explains_how_to_install_it(tmp_path, capsys, mo
     assert not output.exists()
 
 
+@pytest.mark.slow
 def test_demo_no_plot_writes_nothing(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["demo", "--pairs", "16", "--repeats", "1", "--cases", "3d-boxes",

@@ -361,6 +361,7 @@ CLASS_CASES = [("poly8", np.float64), ("box", np.float64), ("hull", np.float64),
 20 points (and boxes) padded to 20 vertices (edge axes on the Gauss map)."""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "dtype"), CLASS_CASES,
                          ids=[f"{n}-{np.dtype(d).name}" for n, d in CLASS_CASES])
 def test_random_pairs(name, dtype):
@@ -383,6 +384,7 @@ SCALE_CASES = [(name, dtype) for name, dtype in CLASS_CASES if name in ("poly8",
                                                                          "hull")]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scale", [1e-3, 1e3])
 @pytest.mark.parametrize(("name", "dtype"), SCALE_CASES,
                          ids=[f"{n}-{np.dtype(d).name}" for n, d in SCALE_CASES])
@@ -612,6 +614,7 @@ def hand_built_pairs(dim: int, label: str, gaps, motions: int = 3, seed: int = 3
     return pairs, entries
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("dim", "label"), [(2, "padded"), (3, "padded"), (3, "box")])
 def test_hand_built_closest_features(dim, label):
     """Known closest features, each under four common rigid motions (the identity first),
@@ -673,6 +676,7 @@ def _distance_in_angle(a, params_a, b, x, y, angle):
 _angle_derivative = jax.jit(jax.vmap(jax.value_and_grad(_distance_in_angle, argnums=5)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
 def test_angle_derivative_matches_finite_differences_on_many_polygon_pairs(dtype):
     """16,384 random 2D pairs, most of them overlapping: the exact derivative in b's angle
@@ -728,6 +732,7 @@ def _single_pairs(count: int, seed: int) -> Pairs:
                         np.float64)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("batch_shape", [(1,), (3, 4)], ids=str)
 def test_vmap_matches_python_loop(batch_shape):
     """Nested vmaps over a batch of one and a 2D batch give the single jitted calls, pair by
@@ -749,6 +754,7 @@ def test_vmap_matches_python_loop(batch_shape):
         assert float(distance[index]) == pytest.approx(float(single), abs=1e-12)
 
 
+@pytest.mark.slow
 def test_jit_matches_eager_and_batched():
     """Eager and jitted single calls and the batched call agree (eager is slow: 2 pairs)."""
     pairs = _single_pairs(2, 40)
@@ -760,6 +766,7 @@ def test_jit_matches_eager_and_batched():
         assert eager == pytest.approx(float(batched[i]), abs=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
 def test_output_dtypes_follow_inputs(dtype):
     """float32 shapes and poses give float32 results everywhere, float64 give float64."""
@@ -803,6 +810,7 @@ def test_smoothing_of_the_wrong_type_raises(smoothing):
         jaxsat.signed_distance(square, pose, square, pose, smoothing=smoothing)
 
 
+@pytest.mark.slow
 def test_the_exact_path_is_chosen_by_none_alone():
     """None is exact; every number, Python or traced, takes the smooth path, whose value is
     below the exact one here (two squares apart diagonally: the soft extremes see more than

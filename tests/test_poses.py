@@ -35,6 +35,7 @@ def assert_rotation(matrix, atol):
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @given(x=coordinates, y=coordinates, angle=angles)
 def test_pose2_matches_scipy(x, y, angle):
     pose = jaxsat.pose2(x, y, angle)
@@ -78,6 +79,7 @@ def test_known_rotations():
     np.testing.assert_allclose(about_x, [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-15)
 
 
+@pytest.mark.slow
 def test_zero_quaternion_gives_identity_and_finite_gradient():
     pose = jaxsat.pose3(np.ones(3), np.zeros(4))
     np.testing.assert_array_equal(pose.rotation, np.eye(3))
@@ -92,6 +94,7 @@ def test_zero_quaternion_gives_identity_and_finite_gradient():
     assert np.all(np.isfinite(gradient))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_pose_dtypes_follow_the_inputs(dtype):
     pose = jaxsat.pose2(dtype(1.0), dtype(2.0), dtype(0.5))
@@ -111,6 +114,7 @@ def test_pose_dtypes_follow_the_inputs(dtype):
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @given(angle=angles)
 def test_gradient_through_angle(angle):
     """d/dangle of R(angle) p, against the analytic derivative."""
@@ -126,6 +130,7 @@ def test_gradient_through_angle(angle):
     assert np.linalg.norm(jacobian) > 0
 
 
+@pytest.mark.slow
 @given(quaternion=quaternions)
 def test_gradient_through_quaternion(quaternion):
     """The Jacobian of R(q) p in q is finite, non-zero and matches central differences."""
@@ -147,6 +152,7 @@ def test_gradient_through_quaternion(quaternion):
     np.testing.assert_allclose(jacobian @ quaternion, 0.0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_gradient_of_penetration_through_pose_parameters():
     """Gradients reach the pose parameters through a collision query."""
     square = jaxsat.box([1.0, 1.0])
@@ -233,6 +239,7 @@ def test_identity_pose():
         np.testing.assert_array_equal(pose.apply(points), points)
 
 
+@pytest.mark.slow
 def test_batched_poses_by_vmap():
     rng = np.random.default_rng(0)
     translations, quaternions = rng.normal(size=(6, 3)), rng.normal(size=(6, 4))

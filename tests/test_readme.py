@@ -7,6 +7,8 @@ import re
 import subprocess
 import sys
 
+import pytest
+
 README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
 
 
@@ -22,6 +24,7 @@ def test_readme_example_runs():
     assert lines[2] == "-1.0"
 
 
+@pytest.mark.slow
 def test_readme_signed_distance_example_runs():
     blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
     assert len(blocks) >= 2, "README.md has no signed-distance example"
@@ -42,6 +45,7 @@ def test_quickstart_commands():
     assert "python -m pytest" in text
 
 
+@pytest.mark.slow
 def test_readme_scene_example_runs():
     blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
     assert len(blocks) >= 3, "README.md has no scene example"

@@ -378,6 +378,7 @@ def test_oracle_distance_matches_quadratic_programme():
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_random_pairs(classes, dtype):
     """Generic pairs from deep overlap to clear separation, any rotations."""
     rng = np.random.default_rng([11, len(classes[0]), len(classes[1])])
@@ -389,6 +390,7 @@ def test_random_pairs(classes, dtype):
     assert np.max(depth) > 0.5 * max(r.size for r in refs)
 
 
+@pytest.mark.slow
 def test_mixed_size_classes():
     """a and b from different size classes (box vs padded hulls), in both orders."""
     rng = np.random.default_rng(12)
@@ -411,6 +413,7 @@ def _shallow(pairs: Pairs, refs, targets: np.ndarray) -> Pairs:
     return pairs.replace(params_b=params_b)
 
 
+@pytest.mark.slow
 def test_shallow_contacts(classes, dtype):
     """|depth| < 1e-3: touching, barely overlapping and barely separated pairs.
 
@@ -461,6 +464,7 @@ def test_nested_shapes(dtype):
     check_against_oracle(pairs.swapped())
 
 
+@pytest.mark.slow
 @settings(max_examples=12)
 @given(exponent=st.floats(-3.0, 3.0), seed=st.integers(0, 2**31 - 1))
 @example(exponent=-3.0, seed=0)
@@ -547,13 +551,13 @@ def test_sat_search_names_the_feature_of_its_axis(padded):
     from jaxsat._sat import EDGE_PAIR, FACE_OF_A, FACE_OF_B, sat_search
 
     cube = jaxsat.box([1.0, 1.0, 1.0], 8 if padded else None, dtype=np.float64)
+    search = jax.jit(lambda *pair: sat_search(pair_frame(*pair)))
     expected = {"edge-edge": EDGE_PAIR, "vertex-face": FACE_OF_A, "face-vertex": FACE_OF_B}
     for contact, feature in expected.items():
         quaternion_a, quaternion_b, reach_a, reach_b = CONTACTS[contact]
         for depth in (0.1, -0.1):
-            frame = pair_frame(cube, jaxsat.pose3([0.0, 0.0, 0.0], quaternion_a), cube,
-                               jaxsat.pose3([reach_a + reach_b - depth, 0, 0], quaternion_b))
-            found = sat_search(frame)
+            found = search(cube, jaxsat.pose3([0.0, 0.0, 0.0], quaternion_a), cube,
+                           jaxsat.pose3([reach_a + reach_b - depth, 0, 0], quaternion_b))
             assert int(found.feature) == feature, (contact, depth)
             np.testing.assert_allclose(found.depth, depth, atol=1e-12)
 
@@ -671,6 +675,7 @@ single_query = jax.jit(_query)
 """Unbatched jitted query, shared by the tests that call pairs one at a time."""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "dtype"), [("poly8", np.float64), ("hull8", np.float64),
                                              ("box", np.float32)])
 def test_vmap_matches_python_loop(name, dtype):
@@ -690,6 +695,7 @@ def test_vmap_matches_python_loop(name, dtype):
         assert hit.shape == () and bool(hit) == bool(hits[i])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "dtype"), [("poly8", np.float64), ("box", np.float32)])
 def test_jit_and_eager_agree(name, dtype):
     """The same pairs with and without jit (eager calls are slow: only a few pairs)."""
@@ -714,6 +720,7 @@ def test_jit_and_eager_agree(name, dtype):
     np.testing.assert_array_equal(outputs["jit"][2], outputs["eager"][2])
 
 
+@pytest.mark.slow
 def test_same_padded_sizes_do_not_recompile():
     """New shapes and poses with the same padded sizes reuse the compiled kernel."""
     traces = []
@@ -741,6 +748,7 @@ def test_same_padded_sizes_do_not_recompile():
     assert len(traces) == 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
 @pytest.mark.parametrize("dim", [2, 3])
 def test_output_dtypes(dim, dtype):
@@ -784,6 +792,7 @@ def test_translated_copies(name):
     check_against_oracle(pairs)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["poly8", "box"])
 def test_depth_gradient_is_minus_normal(name):
     """d depth / d translation_b = -normal and d depth / d translation_a = +normal.
@@ -871,6 +880,7 @@ def test_wrong_argument_types_raise(query):
         query(cube, pose, cube, (pose.translation, pose.rotation))
 
 
+@pytest.mark.slow
 def test_intersects_single_calls_batches_and_gradients_agree():
     """intersects has two code paths (a single call checks AABBs first, a vmapped one goes
     straight to SAT); both must agree with the depth sign, nested vmaps with shared arguments
@@ -975,6 +985,7 @@ def _padded_box_pool(dtype) -> Pool:
                 jaxsat.stack([factory(dtype) for _, factory in raw]))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "dtype"), [("hull8", np.float64), ("box8", np.float64),
                                              ("hull8", np.float32)],
                          ids=["hull8-float64", "box8-float64", "hull8-float32"])
@@ -1016,6 +1027,7 @@ def test_non_bool_prune_raises(prune):
         jaxsat.penetration(cube, pose, cube, pose, prune=prune)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, 3])
 def test_jitted_batched_depth_gradient_is_minus_normal_at_face_ties(dim):
     """Regression: under jit(vmap(grad)), a chain of jnp.minimum over the tied vertices of a
@@ -1043,6 +1055,7 @@ def test_jitted_batched_depth_gradient_is_minus_normal_at_face_ties(dim):
     np.testing.assert_allclose(gradients, -hits.normal, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_large_batch_keeps_gauss_map_axis_sense_at_vertex_vertex_contact():
     """Regression: two octahedra 5e-8 apart tip to tip, in float64. For batches of more than
     about 1,400 pairs XLA rounded the sign of the Gauss-map winner's orientation (a dot

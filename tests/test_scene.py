@@ -62,6 +62,7 @@ SCENES = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,dtype", [("2d-polygons", np.float64), ("3d-boxes", np.float64),
                                         ("3d-hulls", np.float64), ("3d-boxes", np.float32)])
 def test_collide_equals_brute_force(name, dtype):
@@ -80,6 +81,7 @@ def test_collide_equals_brute_force(name, dtype):
     assert result.depth.dtype == dtype and result.pairs.dtype == jnp.int32
 
 
+@pytest.mark.slow
 def test_levels_agree_and_skip_work():
     shapes, poses = SCENES["3d-boxes"](np.random.default_rng(2), np.float64)
     by_level = {level: jaxsat.collide(shapes, poses, capacity=512, level=level)
@@ -91,6 +93,7 @@ def test_levels_agree_and_skip_work():
     np.testing.assert_array_equal(by_level["intersects"].pairs, by_level["penetration"].pairs)
 
 
+@pytest.mark.slow
 def test_filters_equal_brute_force():
     rng = np.random.default_rng(4)
     shapes, poses = _scene_2d(rng, 200, 6.0)
@@ -105,6 +108,7 @@ def test_filters_equal_brute_force():
     assert set(_colliding(result)) == set(truth) and len(truth) >= 10
 
 
+@pytest.mark.slow
 def test_overflow_is_reported():
     shapes, poses = SCENES["2d-polygons"](np.random.default_rng(9), np.float64)
     truth = _brute_force(shapes, poses)
@@ -114,6 +118,7 @@ def test_overflow_is_reported():
     assert set(_colliding(small)) <= set(truth)
 
 
+@pytest.mark.slow
 def test_collide_vmaps_over_scenes():
     rng = np.random.default_rng(6)
     scenes = [_scene_2d(rng, 100, 5.0) for _ in range(2)]
@@ -138,6 +143,7 @@ def test_collide_rejects_bad_input():
         jaxsat.collide(poses, shapes, capacity=8)
 
 
+@pytest.mark.slow
 def test_collide_sharded_over_four_devices_equals_one_device():
     from multidevice import run_on_devices
 

@@ -392,6 +392,7 @@ def _padding_variants(dim):
     return results
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, 3])
 def test_padding_never_changes_overlap_results(dim):
     """Overlap depth, normal and intersects are the same however the shapes are padded."""
@@ -410,6 +411,7 @@ def test_padding_never_changes_overlap_results(dim):
         np.testing.assert_array_equal(other_hits[decided], depth[decided] > 0, err_msg=name)
 
 
+@pytest.mark.slow
 def test_box_padding_never_changes_results():
     """Unpadded boxes take the projection edge method, padded ones the Gauss map; both must
     give the same depths and normals, overlapping or separated."""
@@ -424,6 +426,7 @@ def test_box_padding_never_changes_results():
     np.testing.assert_allclose(np.asarray(padded.normal), np.asarray(plain.normal), atol=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, 3])
 def test_padding_never_changes_separated_depth(dim):
     """The separation gap (depth <= 0) does not depend on the padding either."""
@@ -656,6 +659,7 @@ def test_unique_axes_false_gives_the_same_penetration_2d():
     _assert_same_penetration(jaxsat.polygon, raw, raw, 2, 11)
 
 
+@pytest.mark.slow
 def test_unique_axes_false_gives_the_same_penetration_boxes():
     """Unique box axes take the projection edge method (3 x 3), every axis the Gauss map
     (12 x 12 hull edges): the same results, overlapping or separated."""
@@ -664,6 +668,7 @@ def test_unique_axes_false_gives_the_same_penetration_boxes():
     _assert_same_penetration(jaxsat.box, raw, raw, 3, 13, reach=2.8)
 
 
+@pytest.mark.slow
 def test_unique_axes_false_gives_the_same_penetration_hulls():
     rng = np.random.default_rng(14)
     raw = [rng.normal(size=(10, 3)) * 0.6 for _ in range(2)] + [CUBE * [0.5, 0.3, 0.7]]

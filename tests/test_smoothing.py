@@ -139,6 +139,7 @@ MANY = {2: [("poly8", 10_000)], 3: [("box", 5_000), ("hull", 5_000)]}
 20 points (and boxes) padded to 20 vertices."""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, 3])
 def test_bound_and_gradient_norms_over_many_pairs(dim):
     """1e4 random pairs per dimension, from deep overlap to clear separation, tau from 1e-3 to
@@ -195,6 +196,7 @@ def test_bound_and_gradient_norms_over_many_pairs(dim):
 BOUND_CASES = [("poly8", 1.0), ("box", 1.0), ("hull8", 1.0), ("poly8", 1e-3), ("hull8", 1e3)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "scale"), BOUND_CASES,
                          ids=[f"{n}-{s:g}" for n, s in BOUND_CASES])
 def test_error_within_bound(name, scale):
@@ -210,6 +212,7 @@ def test_error_within_bound(name, scale):
     assert np.max(ratio) > 0.05  # the bound is not vacuous
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("dim", "label"), [(2, "padded"), (3, "padded"), (3, "box")])
 def test_error_within_bound_on_ties(dim, label):
     """The hand-built contacts of test_distance (vertex-vertex, vertex-edge, edge-edge,
@@ -220,6 +223,7 @@ def test_error_within_bound_on_ties(dim, label):
     check_within_bound(pairs)
 
 
+@pytest.mark.slow
 def test_identical_shapes_at_identical_poses():
     """Each shape against itself at one pose: every face normal ties for the deepest axis."""
     rng = np.random.default_rng(52)
@@ -335,6 +339,7 @@ def delicate_pairs(dim: int, gaps, motion=None):
     return pairs, names, np.array(used), values
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, 3])
 def test_error_within_bound_near_degenerate(dim):
     """Vertex-vertex nearly touching, face-face touching and flush, (nearly) parallel and
@@ -481,6 +486,7 @@ FD_CLASSES = ["poly8", "box"]
 """Each compiles its own gradient (hull8 would cost as much as both together)."""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", FD_CLASSES)
 def test_gradients_match_finite_differences(name):
     """Random pairs, apart and overlapping, tau = 0.01, 0.05 and 0.2 size (padded polygons
@@ -498,6 +504,7 @@ def test_gradients_match_finite_differences(name):
         assert not np.all(a.vertex_mask) and not np.all(b.vertex_mask)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, 3])
 def test_gradients_match_finite_differences_at_degenerate_features_apart(dim):
     """The delicate feature pairs (vertex-vertex, corner to corner with every edge parallel,
@@ -523,6 +530,7 @@ def test_gradients_match_finite_differences_at_degenerate_features_apart(dim):
                                      label + " face contact")
 
 
+@pytest.mark.slow
 def test_forward_mode_matches_reverse_mode():
     """jacfwd and jacrev of the smooth value agree (vertices and pose parameters), at random
     and at degenerate configurations."""
@@ -552,6 +560,7 @@ flat_gradient_batch = jax.jit(jax.vmap(jax.grad(_flat_pose_value)))
 flat_hessian_batch = jax.jit(jax.vmap(jax.hessian(_flat_pose_value)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["poly8", "box"])
 def test_second_derivatives_match_finite_differences(name):
     """Apart, the smooth value is infinitely differentiable: its Hessian in the pose
@@ -813,6 +822,7 @@ def test_bound_rejects_mismatched_shapes():
         jaxsat.smoothing_error_bound(square, np.zeros((4, 2)))
 
 
+@pytest.mark.slow
 def test_traced_tau_under_jit():
     """tau as a traced argument of jit gives the eager value with a Python tau and the value
     of the batched function; one compiled function serves every tau."""
@@ -842,6 +852,7 @@ def _zero_smoothing(a, params_a, b, params_b):
 zero_batch = jax.jit(jax.vmap(_zero_smoothing))
 
 
+@pytest.mark.slow
 def test_zero_smoothing_is_exact():
     """smoothing=None is the exact value (the oracle's); a small tau is close to it, and
     differs from it for most pairs (for some, every term but the largest underflows)."""
@@ -856,6 +867,7 @@ def test_zero_smoothing_is_exact():
     assert np.all(np.abs(smooth - default) <= bounds(pairs) * 1e-6 + 1e-9)
 
 
+@pytest.mark.slow
 def test_float32():
     """float32 shapes, poses and tau: float32 values within the bound (plus float32 error)."""
     rng = np.random.default_rng(60)
@@ -869,6 +881,7 @@ def test_float32():
     assert np.all(errors <= bounds(pairs) * taus + 1e-4 * sizes_of(refs))
 
 
+@pytest.mark.slow
 def test_traced_zero_smoothing_is_finite_and_exact_up_to_rounding():
     """Regression: a traced tau of 0 divided by zero (NaN); it is now floored at a few ulps."""
     square = jaxsat.box([1.0, 1.0])

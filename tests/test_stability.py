@@ -42,6 +42,8 @@ from hypothesis import strategies as st
 
 import jaxsat
 
+pytestmark = pytest.mark.slow  # the fast subset is -m "not slow"
+
 FAST_COMPILE = {
     "xla_cpu_use_fusion_emitters": False,
     "xla_backend_optimization_level": 0,
@@ -351,7 +353,7 @@ def _smooth_values(params_a, params_b, vertices_a, vertices_b, a, b, tau):
 
 def _exact_values(params_a, params_b, a, b):
     """The exact value of (rebuilt) shapes."""
-    return _distance(params_a, params_b, a.vertices, b.vertices, a, b, 0.0)
+    return _distance(params_a, params_b, a.vertices, b.vertices, a, b, None)
 
 
 POSE_ARGNUMS = (0, 1)
