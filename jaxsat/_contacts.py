@@ -538,6 +538,11 @@ def _closest_midpoint(start_1, end_1, start_2, end_2):
     d1, d2, r = end_1 - start_1, end_2 - start_2, start_1 - start_2
     a, e, f = dot(d1, d1), dot(d2, d2), dot(d2, r)
     c, b = dot(d1, r), dot(d1, d2)
+    # Divided by the squared lengths, every product below is free of the shapes' scale: raw,
+    # a * e is the fourth power of a length, and the derivative of a division by it (its
+    # square) underflows to 0 in float32 for shapes of size 1e-6, giving inf * 0 = NaN.
+    squared_lengths = a + e
+    a, e, f, c, b = (safe_divide(x, squared_lengths, squared_lengths > 0) for x in (a, e, f, c, b))
     denominator = a * e - b * b
     eps = jnp.finfo(a.dtype).eps
     s = jnp.clip(safe_divide(b * f - c * e, denominator, denominator > eps * a * e), 0.0, 1.0)

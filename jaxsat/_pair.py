@@ -50,7 +50,10 @@ def cast_pair(a, pose_a, b, pose_b):
     """The four inputs as JAX arrays, every float leaf in their common dtype (outputs follow
     it). NumPy leaves (shapes sliced with np.asarray, say) become JAX arrays, so that traced
     indices can index them."""
-    dtype = jnp.result_type(a.vertices, b.vertices, pose_a.translation, pose_b.translation)
+    # Mixed float32/float64 pairs are promoted on purpose, also under a user's strict
+    # promotion setting (where jnp.result_type would raise).
+    with jax.numpy_dtype_promotion("standard"):
+        dtype = jnp.result_type(a.vertices, b.vertices, pose_a.translation, pose_b.translation)
     cast = lambda tree: jax.tree.map(  # noqa: E731
         lambda leaf: jnp.asarray(leaf, dtype if jnp.issubdtype(leaf.dtype, jnp.floating)
                                  else None), tree)

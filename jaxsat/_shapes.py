@@ -118,6 +118,8 @@ class Polytope:
 def ring_neighbours(index, count):
     """(previous, next) vertex index of a polygon ring of `count` real vertices (padding rows
     come after them, so the ring closes at count - 1, not at the padded end)."""
+    count = jnp.asarray(count)
+    index = jnp.asarray(index, count.dtype)
     previous = jnp.where(index == 0, count - 1, index - 1)
     following = jnp.where(index + 1 >= count, 0, index + 1)
     return previous, following

@@ -287,8 +287,9 @@ def _search(frame: PairFrame, tau, start):
         tail = plain & (ratio > 1.1) & (length < 0.99 * radius)
         shrink = plain & (ratio < 0.25)
         grow = plain & (ratio > 0.75) & (length > 0.99 * radius)
-        code = kernels.materialize(better.astype(jnp.int32) + 2 * (better & (tail | ~plain))
-                             + 4 * shrink + 8 * grow)
+        bits = [flag.astype(jnp.int32) for flag in (better, better & (tail | ~plain), shrink,
+                                                     grow)]
+        code = kernels.materialize(bits[0] + 2 * bits[1] + 4 * bits[2] + 8 * bits[3])
         better, stretch_more = code % 2 == 1, (code // 2) % 2 == 1
         shrink, grow = (code // 4) % 2 == 1, (code // 8) % 2 == 1
         radius = jnp.where(shrink, 0.25 * length, jnp.where(grow, 2.0 * radius, radius))
