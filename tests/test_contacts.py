@@ -725,3 +725,24 @@ def test_gradients_are_finite():
         grads = gradient(jnp.asarray(translation), jnp.asarray(rotation), box, box)
         for leaf in jax.tree.leaves(grads):
             assert np.all(np.isfinite(np.asarray(leaf)))
+
+
+@pytest.mark.slow
+def test_gradients_are_finite_for_tiny_hulls_in_float32():
+    """Two tetrahedra of size 2^-20 (about 1e-6) touching edge to edge, in float32: the
+    segment closest-point step once divided by a fourth power of their size, whose square
+    underflows in the gradient (inf * 0 = NaN in every pose derivative)."""
+    scale = 2.0**-20
+    disphenoid = np.array([[-1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, -1.0, 0.0],
+                           [0.0, 1.0, 0.0]]) * scale
+    hull = jaxsat.polyhedron(disphenoid, 8, dtype=np.float32)
+
+    def objective(translation_b, rotation_b):
+        result = jaxsat.contacts(hull, jaxsat.Pose.identity(3, np.float32), hull,
+                                 jaxsat.Pose(translation_b, rotation_b))
+        return jnp.sum(result.depths) + jnp.sum(result.points)
+
+    gradient = jax.jit(jax.grad(objective, argnums=(0, 1)), compiler_options=FAST_COMPILE)
+    grads = gradient(jnp.asarray([0.0, 0.0, scale], jnp.float32), jnp.eye(3, dtype=jnp.float32))
+    for leaf in jax.tree.leaves(grads):
+        assert np.all(np.isfinite(np.asarray(leaf)))
