@@ -198,7 +198,8 @@ def broad_phase(low: jax.Array, high: jax.Array, *, capacity: int,
     count = jnp.sum(keep, dtype=jnp.int32)
     unexamined = jnp.maximum(total - candidate_capacity, 0)
     return CandidatePairs(pairs=_compact(pairs, keep, capacity, 0),
-                          valid=jnp.arange(capacity) < count, count=count + unexamined,
+                          valid=jnp.arange(capacity, dtype=jnp.int32) < count,
+                          count=count + unexamined,
                           overflow=jnp.maximum(count - capacity, 0) + unexamined)
 
 

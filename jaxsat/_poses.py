@@ -65,7 +65,10 @@ class Pose:
 
 def _as_float(*values):
     arrays = [jnp.asarray(value) for value in values]
-    dtype = jnp.result_type(float, *arrays)
+    # Integers and Python numbers become the default float, float arrays keep their dtype:
+    # standard promotion on purpose, also under a user's strict setting (where it would raise).
+    with jax.numpy_dtype_promotion("standard"):
+        dtype = jnp.result_type(float, *arrays)
     return [array.astype(dtype) for array in arrays]
 
 
