@@ -9,15 +9,31 @@ once per dtype.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 
-import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
 import oracle
 import pytest
+from harness import (
+    DTYPE_IDS,
+    DTYPES,
+    GENERATORS,
+    IDENTITY,
+    NORMAL_TOLERANCE,
+    RELATIVE_TOLERANCE,
+    UNIT_TOLERANCE,
+    Pairs,
+    Pool,
+    make_pool,
+    quaternion,
+    quaternion_product,
+    random_pairs,
+    random_params,
+    take,
+    world_points,
+)
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize
@@ -29,138 +45,9 @@ import jaxsat
 BATCH = 128
 """Every batched call uses this many pairs (the last chunk is padded), so nothing recompiles."""
 
-RELATIVE_TOLERANCE = {np.float64: 1e-9, np.float32: 1e-4}
-"""Depth tolerance relative to the shapes' size (the larger bounding radius)."""
-
-UNIT_TOLERANCE = {np.float64: 1e-12, np.float32: 1e-5}
-"""Tolerance on |normal| - 1."""
-
-NORMAL_TOLERANCE = {np.float64: 1e-7, np.float32: 1e-3}
-"""Tolerance on the normal itself, compared only where the optimal facet is unique by a margin."""
-
-DTYPES = [np.float64, np.float32]
-DTYPE_IDS = ["float64", "float32"]
-
-
 # --------------------------------------------------------------------------------------------
-# Random shape generation: every generator returns (raw local points, factory(dtype)).
+# Pairs: the harness's pools and pairs, evaluated in fixed-size jitted batches.
 # --------------------------------------------------------------------------------------------
-
-
-def _random_convex_polygon(rng: np.random.Generator, scale: float):
-    """3 to 8 vertices on a random ellipse (always strictly convex), off-centre, or a box."""
-    kind = rng.integers(4)
-    if kind == 0:
-        half = rng.uniform(0.2, 1.0, 2) * scale
-        corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
-        return corners, lambda dtype: jaxsat.box(half.astype(dtype), max_vertices=8)
-    if kind == 1:
-        sides = int(rng.integers(3, 9))
-        radius = float(rng.uniform(0.3, 1.0)) * scale
-        angles = 2 * np.pi * np.arange(sides) / sides
-        corners = radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
-        return corners, lambda dtype: jaxsat.regular_polygon(sides, radius, 8, dtype=dtype)
-    count = int(rng.integers(3, 9))
-    # Sorted random angles with a minimum spacing, so no vertex is nearly straight.
-    while True:
-        angles = np.sort(rng.uniform(0, 2 * np.pi, count))
-        if np.min(np.diff(np.append(angles, angles[0] + 2 * np.pi))) > 0.2:
-            break
-    circle = np.stack([np.cos(angles), np.sin(angles)], axis=1)
-    stretch = np.diag(rng.uniform(0.3, 1.0, 2)) @ oracle.rotation_2d(rng.uniform(0, 2 * np.pi))
-    points = (circle @ stretch.T + rng.uniform(-0.3, 0.3, 2)) * scale
-    if kind == 3:
-        points = points[::-1]  # clockwise input
-    return points, lambda dtype: jaxsat.polygon(points.astype(dtype), 8)
-
-
-def _random_box(rng: np.random.Generator, scale: float, max_vertices=None):
-    half = rng.uniform(0.2, 1.0, 3) * scale
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-    return signs * half, lambda dtype: jaxsat.box(half.astype(dtype), max_vertices, dtype=dtype)
-
-
-def _random_hull(rng: np.random.Generator, scale: float, count: int):
-    """Hull of `count` points: on a stretched sphere (all extreme) or Gaussian (some interior)."""
-    if rng.integers(4) == 0:
-        return _random_box(rng, scale, max_vertices=count)
-    points = rng.normal(size=(count, 3))
-    if rng.integers(2) == 0:
-        points /= np.linalg.norm(points, axis=1, keepdims=True)
-    else:
-        points /= np.max(np.linalg.norm(points, axis=1))
-    stretch = np.diag(rng.uniform(0.3, 1.0, 3)) @ oracle.rotation_3d(rng.normal(size=4))
-    points = (points @ stretch.T + rng.uniform(-0.3, 0.3, 3)) * scale
-    return points, lambda dtype: jaxsat.polyhedron(points.astype(dtype), count, dtype=dtype)
-
-
-GENERATORS = {
-    "poly8": (2, _random_convex_polygon),
-    "box": (3, _random_box),
-    "hull8": (3, functools.partial(_random_hull, count=8)),
-    "hull20": (3, functools.partial(_random_hull, count=20)),
-}
-
-
-@dataclasses.dataclass
-class Pool:
-    """A few shapes of one size class, stacked, with their raw points (rounded to the dtype)."""
-
-    dim: int
-    points: list[np.ndarray]
-    shapes: jaxsat.Polytope
-
-
-def make_pool(name: str, dtype, rng: np.random.Generator, scale: float = 1.0, size: int = 12):
-    dim, generate = GENERATORS[name]
-    points, shapes = [], []
-    for _ in range(size):
-        raw, factory = generate(rng, scale)
-        shape = factory(dtype)
-        assert shape.dtype == dtype
-        points.append(raw.astype(dtype).astype(np.float64))
-        shapes.append(shape)
-    return Pool(dim, points, jaxsat.stack(shapes))
-
-
-# --------------------------------------------------------------------------------------------
-# Pairs: indices into two pools and pose parameters; evaluation in fixed-size jitted batches.
-# --------------------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass
-class Pairs:
-    pool_a: Pool
-    pool_b: Pool
-    index_a: np.ndarray
-    index_b: np.ndarray
-    params_a: tuple[np.ndarray, ...]
-    """2D: (x, y, angle) arrays; 3D: (translations (N, 3), quaternions (N, 4))."""
-    params_b: tuple[np.ndarray, ...]
-    dtype: type
-
-    @property
-    def dim(self) -> int:
-        return self.pool_a.dim
-
-    def __len__(self) -> int:
-        return len(self.index_a)
-
-    def replace(self, **changes) -> Pairs:
-        return dataclasses.replace(self, **changes)
-
-    def swapped(self) -> Pairs:
-        return Pairs(self.pool_b, self.pool_a, self.index_b, self.index_a, self.params_b,
-                     self.params_a, self.dtype)
-
-
-def random_params(dim: int, count: int, rng: np.random.Generator, dtype, spread: float = 2.0):
-    """Random pose parameters: positions in [-spread, spread], any rotation."""
-    if dim == 2:
-        x, y = rng.uniform(-spread, spread, (2, count))
-        return tuple(v.astype(dtype) for v in (x, y, rng.uniform(-np.pi, np.pi, count)))
-    quaternions = rng.normal(size=(count, 4)) * rng.uniform(0.5, 2.0, (count, 1))
-    return (rng.uniform(-spread, spread, (count, 3)).astype(dtype), quaternions.astype(dtype))
 
 
 def offset_params(dim: int, params, offsets: np.ndarray, dtype, rng: np.random.Generator):
@@ -172,48 +59,10 @@ def offset_params(dim: int, params, offsets: np.ndarray, dtype, rng: np.random.G
     return ((params[0] + offsets).astype(dtype), fresh[1])
 
 
-def random_pairs(pool_a: Pool, pool_b: Pool, count: int, rng: np.random.Generator, dtype,
-                 distance: tuple[float, float] = (0.0, 2.5), scale: float = 1.0) -> Pairs:
-    """Random pairs whose origins are `distance` * scale apart (uniform), any rotations."""
-    dim = pool_a.dim
-    params_a = random_params(dim, count, rng, dtype, spread=2.0 * scale)
-    directions = rng.normal(size=(count, dim))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    offsets = directions * rng.uniform(*distance, (count, 1)) * scale
-    params_b = offset_params(dim, params_a, offsets, dtype, rng)
-    return Pairs(pool_a, pool_b, rng.integers(len(pool_a.points), size=count),
-                 rng.integers(len(pool_b.points), size=count), params_a, params_b, dtype)
-
-
 def make_poses(dim: int, params) -> jaxsat.Pose:
     """Batched poses from batched parameters (through the public constructors, vmapped)."""
     params = tuple(jnp.asarray(p) for p in params)
     return jax.vmap(jaxsat.pose2 if dim == 2 else jaxsat.pose3)(*params)
-
-
-def oracle_rotations(dim: int, params) -> np.ndarray:
-    if dim == 2:
-        return np.stack([oracle.rotation_2d(float(angle)) for angle in params[2]])
-    return np.stack([oracle.rotation_3d(q) for q in params[1]])
-
-
-def oracle_translations(dim: int, params) -> np.ndarray:
-    if dim == 2:
-        return np.stack([params[0], params[1]], axis=1).astype(np.float64)
-    return np.asarray(params[0], np.float64)
-
-
-def world_points(pairs: Pairs):
-    """(world A, world B) float64 point lists, from raw points and SciPy rotations."""
-    rot_a, rot_b = oracle_rotations(pairs.dim, pairs.params_a), oracle_rotations(pairs.dim,
-                                                                                 pairs.params_b)
-    t_a, t_b = oracle_translations(pairs.dim, pairs.params_a), oracle_translations(pairs.dim,
-                                                                                   pairs.params_b)
-    world_a = [oracle.to_world(pairs.pool_a.points[i], r, t)
-               for i, r, t in zip(pairs.index_a, rot_a, t_a, strict=True)]
-    world_b = [oracle.to_world(pairs.pool_b.points[i], r, t)
-               for i, r, t in zip(pairs.index_b, rot_b, t_b, strict=True)]
-    return world_a, world_b
 
 
 def _query(a, pose_a, b, pose_b):
@@ -222,10 +71,6 @@ def _query(a, pose_a, b, pose_b):
 
 batched_query = jax.jit(jax.vmap(_query))
 """One jitted function for every test: jit caches one executable per size class and dtype."""
-
-
-def take(tree, index):
-    return jax.tree.map(lambda leaf: leaf[index], tree)
 
 
 def evaluate(pairs: Pairs, function=batched_query):
@@ -315,6 +160,7 @@ def check_against_oracle(pairs: Pairs, outputs=None, references=None):
 
 @functools.cache
 def pool(name: str, dtype, scale: float = 1.0, seed: int = 0) -> Pool:
+    """This module's pools (its own seeds)."""
     return make_pool(name, dtype, np.random.default_rng([seed, 1 + len(name)]), scale)
 
 
@@ -492,29 +338,16 @@ def test_scales_from_milli_to_kilo(exponent, seed):
 # --------------------------------------------------------------------------------------------
 
 
-def _quaternion(axis, angle):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
-
-
-def _quaternion_product(p, q):
-    w1, x1, y1, z1 = p
-    w2, x2, y2, z2 = q
-    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
-
-
-_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 # Rotating by atan(sqrt(2)) about (0, 1, -1)/sqrt(2) takes the corner (-1, -1, -1) to -sqrt(3) x.
-_CORNER_TO_MINUS_X = _quaternion([0, 1, -1], np.arctan(np.sqrt(2)))
+_CORNER_TO_MINUS_X = quaternion([0, 1, -1], np.arctan(np.sqrt(2)))
 CONTACTS = {
     # name: (quaternion a, quaternion b, reach of a along +x, reach of b along -x)
-    "face-face": (_IDENTITY, _quaternion([1, 0, 0], 0.3), 1.0, 1.0),
-    "edge-edge": (_quaternion([0, 0, 1], np.pi / 4), _quaternion([0, 1, 0], np.pi / 4),
+    "face-face": (IDENTITY, quaternion([1, 0, 0], 0.3), 1.0, 1.0),
+    "edge-edge": (quaternion([0, 0, 1], np.pi / 4), quaternion([0, 1, 0], np.pi / 4),
                   np.sqrt(2), np.sqrt(2)),
-    "vertex-face": (_IDENTITY, _CORNER_TO_MINUS_X, 1.0, np.sqrt(3)),
+    "vertex-face": (IDENTITY, _CORNER_TO_MINUS_X, 1.0, np.sqrt(3)),
     # The same rotation takes the corner (1, 1, 1) to +sqrt(3) x.
-    "face-vertex": (_CORNER_TO_MINUS_X, _IDENTITY, np.sqrt(3), 1.0),
+    "face-vertex": (_CORNER_TO_MINUS_X, IDENTITY, np.sqrt(3), 1.0),
 }
 
 
@@ -568,9 +401,9 @@ def test_cube_contacts_perturbed(contact):
     rng = np.random.default_rng(15)
     quaternion_a, quaternion_b, reach_a, reach_b = CONTACTS[contact]
     count = BATCH
-    wobble = lambda: _quaternion(rng.normal(size=3), rng.uniform(0, 0.05))  # noqa: E731
-    q_a = np.array([_quaternion_product(wobble(), quaternion_a) for _ in range(count)])
-    q_b = np.array([_quaternion_product(wobble(), quaternion_b) for _ in range(count)])
+    wobble = lambda: quaternion(rng.normal(size=3), rng.uniform(0, 0.05))  # noqa: E731
+    q_a = np.array([quaternion_product(wobble(), quaternion_a) for _ in range(count)])
+    q_b = np.array([quaternion_product(wobble(), quaternion_b) for _ in range(count)])
     offsets = np.zeros((count, 3))
     offsets[:, 0] = reach_a + reach_b - rng.uniform(-0.1, 0.2, count)
     offsets[:, 1:] = rng.uniform(-0.1, 0.1, (count, 2))
@@ -609,115 +442,8 @@ def test_square_contacts(rotated):
 # --------------------------------------------------------------------------------------------
 
 
-def test_swap_flips_normal_keeps_depth(classes, dtype):
-    rng = np.random.default_rng(16)
-    pairs = random_pairs(pool(classes[0], dtype), pool(classes[1], dtype), BATCH, rng, dtype)
-    depth, normal, hits = evaluate(pairs)
-    refs, _, _ = oracles(pairs)
-    depth_s, normal_s, hits_s = evaluate(pairs.swapped())
-    sizes = np.array([r.size for r in refs])
-    rel = RELATIVE_TOLERANCE[dtype]
-    np.testing.assert_array_less(np.abs(depth_s - depth), rel * sizes)
-    unique = np.array([r.normal_is_unique and r.depth > 0 for r in refs])
-    assert unique.mean() > 0.2
-    np.testing.assert_allclose(normal_s[unique], -normal[unique], atol=NORMAL_TOLERANCE[dtype])
-    decided = np.abs(depth) > rel * sizes
-    np.testing.assert_array_equal(hits_s[decided], hits[decided])
-
-
-def _compose(dim, motion, params, dtype):
-    """Parameters of motion * pose, computed with NumPy (not with jaxsat.Pose.compose)."""
-    if dim == 2:
-        shift, turn = motion
-        rotation = oracle.rotation_2d(turn)
-        position = np.stack([params[0], params[1]], axis=1) @ rotation.T + shift
-        return (position[:, 0].astype(dtype), position[:, 1].astype(dtype),
-                (params[2] + turn).astype(dtype))
-    shift, quaternion = motion
-    rotation = oracle.rotation_3d(quaternion)
-    quaternions = np.array([_quaternion_product(quaternion, q) for q in params[1]])
-    return ((params[0] @ rotation.T + shift).astype(dtype), quaternions.astype(dtype))
-
-
-@settings(max_examples=8)
-@given(data=st.data())
-def test_common_rigid_motion(data):
-    """Moving both shapes by one rigid motion keeps the depth and rotates the normal."""
-    name = data.draw(st.sampled_from(["poly8", "box", "hull8", "hull20"]), label="class")
-    dtype = data.draw(st.sampled_from(DTYPES), label="dtype")
-    dim = GENERATORS[name][0]
-    shift = np.array(data.draw(st.lists(st.floats(-10, 10), min_size=dim, max_size=dim)))
-    if dim == 2:
-        motion = (shift, data.draw(st.floats(-np.pi, np.pi), label="turn"))
-        rotation = oracle.rotation_2d(motion[1])
-    else:
-        quaternion = np.array(data.draw(st.lists(st.floats(-1, 1), min_size=4, max_size=4)))
-        if np.linalg.norm(quaternion) < 0.1:
-            quaternion = _IDENTITY
-        motion = (shift, quaternion)
-        rotation = oracle.rotation_3d(quaternion)
-    rng = np.random.default_rng(data.draw(st.integers(0, 2**31 - 1), label="seed"))
-    pairs = random_pairs(pool(name, dtype), pool(name, dtype), BATCH, rng, dtype)
-    depth, normal, hits = evaluate(pairs)
-    refs, _, _ = oracles(pairs)
-    moved = pairs.replace(params_a=_compose(dim, motion, pairs.params_a, dtype),
-                          params_b=_compose(dim, motion, pairs.params_b, dtype))
-    depth_m, normal_m, _ = evaluate(moved)
-    sizes = np.array([r.size for r in refs])
-    tol = RELATIVE_TOLERANCE[dtype] * sizes
-    np.testing.assert_array_less(np.abs(depth_m - depth), tol)
-    unique = np.array([r.normal_is_unique and r.depth > 0 for r in refs])
-    np.testing.assert_allclose(normal_m[unique], normal[unique] @ rotation.T,
-                               atol=NORMAL_TOLERANCE[dtype])
-
-
 single_query = jax.jit(_query)
 """Unbatched jitted query, shared by the tests that call pairs one at a time."""
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize(("name", "dtype"), [("poly8", np.float64), ("hull8", np.float64),
-                                             ("box", np.float32)])
-def test_vmap_matches_python_loop(name, dtype):
-    """Batched results equal single jitted calls pair by pair."""
-    rng = np.random.default_rng(17)
-    pairs = random_pairs(pool(name, dtype), pool(name, dtype), 12, rng, dtype)
-    depth, normal, hits = evaluate(pairs)
-    poses_a = make_poses(pairs.dim, pairs.params_a)
-    poses_b = make_poses(pairs.dim, pairs.params_b)
-    for i in range(len(pairs)):
-        result, hit = single_query(take(pairs.pool_a.shapes, pairs.index_a[i]), take(poses_a, i),
-                                   take(pairs.pool_b.shapes, pairs.index_b[i]), take(poses_b, i))
-        assert result.depth.shape == () and result.normal.shape == (pairs.dim,)
-        assert result.depth.dtype == dtype and result.normal.dtype == dtype
-        np.testing.assert_allclose(result.depth, depth[i], atol=RELATIVE_TOLERANCE[dtype])
-        np.testing.assert_allclose(result.normal, normal[i], atol=NORMAL_TOLERANCE[dtype])
-        assert hit.shape == () and bool(hit) == bool(hits[i])
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize(("name", "dtype"), [("poly8", np.float64), ("box", np.float32)])
-def test_jit_and_eager_agree(name, dtype):
-    """The same pairs with and without jit (eager calls are slow: only a few pairs)."""
-    rng = np.random.default_rng(18)
-    pairs = random_pairs(pool(name, dtype), pool(name, dtype), 2, rng, dtype)
-    references = oracles(pairs)
-    poses_a = make_poses(pairs.dim, pairs.params_a)
-    poses_b = make_poses(pairs.dim, pairs.params_b)
-    outputs = {}
-    for variant, function in (("jit", single_query), ("eager", _query)):
-        results = [function(take(pairs.pool_a.shapes, pairs.index_a[i]), take(poses_a, i),
-                            take(pairs.pool_b.shapes, pairs.index_b[i]), take(poses_b, i))
-                   for i in range(len(pairs))]
-        for result, _ in results:
-            assert result.depth.dtype == dtype and result.normal.dtype == dtype
-        outputs[variant] = (np.array([r.depth for r, _ in results]),
-                            np.array([r.normal for r, _ in results]),
-                            np.array([bool(h) for _, h in results]))
-        check_against_oracle(pairs, outputs[variant], references)
-    chex.assert_trees_all_close(outputs["jit"][:2], outputs["eager"][:2],
-                                atol=10 * np.finfo(dtype).eps)
-    np.testing.assert_array_equal(outputs["jit"][2], outputs["eager"][2])
 
 
 @pytest.mark.slow
@@ -748,22 +474,6 @@ def test_same_padded_sizes_do_not_recompile():
     assert len(traces) == 2
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
-@pytest.mark.parametrize("dim", [2, 3])
-def test_output_dtypes(dim, dtype):
-    """float32 inputs give float32 outputs, float64 give float64 (single calls)."""
-    shapes = pool("poly8" if dim == 2 else "box", dtype)
-    shape = take(shapes.shapes, 0)
-    assert shape.dtype == dtype
-    params = random_params(dim, 2, np.random.default_rng(0), dtype)
-    poses = make_poses(dim, params)
-    assert poses.translation.dtype == dtype and poses.rotation.dtype == dtype
-    result, hit = single_query(shape, take(poses, 0), shape, take(poses, 1))
-    assert result.depth.dtype == dtype and result.normal.dtype == dtype
-    assert hit.dtype == jnp.bool_
-
-
 @pytest.mark.parametrize("name", ["poly8", "box", "hull8", "hull20"])
 def test_identical_shapes_at_identical_poses(name):
     """Each shape against itself at the same (random) pose: finite positive depth, unit normal."""
@@ -785,7 +495,7 @@ def test_translated_copies(name):
     rng = np.random.default_rng(21)
     shapes = pool(name, np.float64)
     index = rng.integers(len(shapes.points), size=BATCH)
-    identity = np.tile(_IDENTITY, (BATCH, 1))
+    identity = np.tile(IDENTITY, (BATCH, 1))
     offsets = rng.normal(size=(BATCH, 3)) * 0.4
     pairs = Pairs(shapes, shapes, index, index, (np.zeros((BATCH, 3)), identity),
                   (offsets, identity), np.float64)
@@ -958,7 +668,7 @@ def test_jitted_hull_pair_regression_picks_a_true_axis():
 
 # --------------------------------------------------------------------------------------------
 # prune=False: every pair of edge directions by projection, as a textbook SAT does (the
-# comparison of benchmarks/skipping.py).
+# comparison of benchmarks/scene.py).
 # --------------------------------------------------------------------------------------------
 
 
@@ -980,7 +690,7 @@ def _padded_box_pool(dtype) -> Pool:
     """Boxes padded to 8 vertices, the size class of "hull8" (one compile serves both): they
     take the Gauss map, and every pair of their edge directions forms a Minkowski face."""
     rng = np.random.default_rng(43)
-    raw = [_random_box(rng, 1.0, max_vertices=8) for _ in range(12)]
+    raw = [GENERATORS["box"][1](rng, 1.0, max_vertices=8) for _ in range(12)]
     return Pool(3, [points.astype(dtype).astype(np.float64) for points, _ in raw],
                 jaxsat.stack([factory(dtype) for _, factory in raw]))
 

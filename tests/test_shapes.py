@@ -559,7 +559,7 @@ def test_bad_stack_raises():
 
 # --------------------------------------------------------------------------------------------
 # unique_axes=False: one face normal per face and one edge direction per edge, as a textbook
-# SAT keeps them (the comparison of benchmarks/skipping.py).
+# SAT keeps them (the comparison of benchmarks/scene.py).
 # --------------------------------------------------------------------------------------------
 
 

@@ -1,0 +1,226 @@
+"""Generic properties of every public pair query, run once over every query x size class x
+dtype (`harness.every_query_class_dtype`):
+
+* values, and gradients with respect to both poses' parameters, are finite on random pairs and
+  on the catalogue of degenerate configurations;
+* every float output has the input dtype;
+* a jitted vmap equals the query called eagerly, pair by pair (vmap = loop, jit = eager);
+* swapping a and b keeps the depth or distance and flips the normal (where the oracle's
+  normal is unique);
+* moving both shapes by one rigid motion keeps depths and distances, rotates normals and moves
+  points.
+
+Comparisons use tolerances relative to the pair's size from the independent oracle
+(`oracle.py`). Each (query, size class, dtype) compiles one jitted function, shared by every
+property: value and pose gradients of a batch of `harness.BATCH` pairs, compiled with
+`harness.FAST_COMPILE`.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+from harness import (
+    BATCH,
+    FAST_COMPILE,
+    NORMAL_TOLERANCE,
+    QUERIES,
+    RELATIVE_TOLERANCE,
+    Pairs,
+    catalogue_pairs,
+    every_query_class_dtype,
+    make_pose,
+    pool,
+    random_motion,
+    random_pairs,
+    references,
+    rotation_matrices,
+    run_batched,
+    take,
+)
+
+DIFFERENTIABLE = {name for name in QUERIES if name != "intersects"}
+"""Queries with float outputs, whose pose gradients are checked."""
+
+SMOOTH_TOLERANCE = {np.float64: 1e-7, np.float32: 2e-4}
+"""The smooth distance stops its search at a relative tolerance above rounding: symmetric and
+invariant within this (relative to the pair's size)."""
+
+
+# --------------------------------------------------------------------------------------------
+# One compiled function per (query, size class, dtype), and the parts properties compare.
+# --------------------------------------------------------------------------------------------
+
+
+def _float_sum(tree) -> jax.Array:
+    return sum(jnp.sum(leaf) for leaf in jax.tree.leaves(tree)
+               if jnp.issubdtype(leaf.dtype, jnp.floating))
+
+
+@functools.cache
+def batched(name: str):
+    """jit(vmap(...)) of (output, pose-parameter gradients of its float leaves' sum)."""
+    query = QUERIES[name]
+
+    def one(a, params_a, b, params_b):
+        def run(pa, pb):
+            out = query(a, make_pose(pa), b, make_pose(pb))
+            return _float_sum(out), out
+
+        if name not in DIFFERENTIABLE:
+            return run(params_a, params_b)[1], None
+        (_, out), grads = jax.value_and_grad(run, argnums=(0, 1), has_aux=True)(params_a,
+                                                                                  params_b)
+        return out, grads
+
+    return jax.jit(jax.vmap(one), compiler_options=FAST_COMPILE)
+
+
+def evaluate(name: str, pairs: Pairs):
+    return run_batched(batched(name), len(pairs), *pairs.inputs())
+
+
+def scalar(name: str, out) -> np.ndarray:
+    """The frame-free number of each output: overlap, depth or signed distance (contacts: the
+    deepest valid contact's depth, -inf without contact)."""
+    if name == "intersects":
+        return np.asarray(out)
+    if name == "penetration":
+        return out.depth
+    if name == "closest_points":
+        return out.signed_distance
+    if name == "contacts":
+        return np.max(np.where(out.valid, out.depths, -np.inf), axis=-1)
+    return out
+
+
+def normal(name: str, out):
+    return out.normal if name in ("penetration", "closest_points", "contacts") else None
+
+
+def random_and_catalogue_pairs(size_class: str, dtype, seed: int) -> Pairs:
+    """BATCH random pairs of the size class, then every catalogue configuration of it."""
+    shapes = pool(size_class, dtype)
+    random = random_pairs(shapes, shapes, BATCH, np.random.default_rng(seed), dtype)
+    return random.concatenate(catalogue_pairs(size_class, dtype))
+
+
+def tolerance(name: str, dtype) -> float:
+    return SMOOTH_TOLERANCE[dtype] if name == "smooth_signed_distance" else \
+        RELATIVE_TOLERANCE[dtype]
+
+
+# --------------------------------------------------------------------------------------------
+# The properties.
+# --------------------------------------------------------------------------------------------
+
+
+@every_query_class_dtype
+def test_finite_values_and_gradients_on_random_and_degenerate_pairs(query, size_class, dtype):
+    pairs = random_and_catalogue_pairs(size_class, dtype, seed=1)
+    out, grads = evaluate(query, pairs)
+    chex.assert_tree_all_finite(jax.tree.map(
+        lambda leaf: leaf if np.issubdtype(leaf.dtype, np.floating) else np.zeros(1), out))
+    if query in DIFFERENTIABLE:
+        chex.assert_tree_all_finite(grads)
+
+
+@every_query_class_dtype
+def test_float_outputs_follow_the_input_dtype(query, size_class, dtype):
+    pairs = random_pairs(pool(size_class, dtype), pool(size_class, dtype), 4,
+                         np.random.default_rng(2), dtype)
+    out, grads = evaluate(query, pairs)
+    floats = [leaf for leaf in jax.tree.leaves((out, grads))
+              if np.issubdtype(leaf.dtype, np.floating)]
+    assert floats or query == "intersects"
+    assert all(leaf.dtype == dtype for leaf in floats), [leaf.dtype for leaf in floats]
+
+
+@every_query_class_dtype
+def test_jitted_vmap_equals_eager_calls_pair_by_pair(query, size_class, dtype):
+    pairs = random_pairs(pool(size_class, dtype), pool(size_class, dtype), 2,
+                         np.random.default_rng(3), dtype)
+    batched_out, _ = evaluate(query, pairs)
+    sizes = np.array([r.size for r in references(pairs)])
+    a, params_a, b, params_b = pairs.inputs()
+    for i in range(len(pairs)):
+        eager = QUERIES[query](take(a, i), make_pose(take(params_a, i)), take(b, i),
+                               make_pose(take(params_b, i)))
+        chex.assert_trees_all_equal_dtypes(eager, take(batched_out, i))
+        chex.assert_trees_all_close(jax.tree.map(np.asarray, eager), take(batched_out, i),
+                                    atol=tolerance(query, dtype) * sizes[i])
+
+
+@every_query_class_dtype
+def test_swapping_the_shapes_keeps_the_value_and_flips_the_normal(query, size_class, dtype):
+    pairs = random_pairs(pool(size_class, dtype), pool(size_class, dtype), BATCH,
+                         np.random.default_rng(4), dtype)
+    refs = references(pairs)
+    sizes = np.array([r.size for r in refs])
+    out, _ = evaluate(query, pairs)
+    swapped, _ = evaluate(query, pairs.swapped())
+    value, value_swapped = scalar(query, out), scalar(query, swapped)
+    decided = np.array([abs(r.value) > 10 * RELATIVE_TOLERANCE[dtype] * r.size for r in refs])
+    assert decided.mean() > 0.9
+    if query in ("intersects", "contacts"):  # overlap (or contact) or not
+        np.testing.assert_array_equal(value_swapped[decided] > -np.inf if query == "contacts"
+                                      else value_swapped[decided],
+                                      value[decided] > -np.inf if query == "contacts"
+                                      else value[decided])
+    else:
+        np.testing.assert_array_less(np.abs(value_swapped - value),
+                                     tolerance(query, dtype) * sizes)
+    if normal(query, out) is None:
+        return
+    overlapping = np.array([r.depth > 0 for r in refs])
+    unique = (np.array([r.normal_is_unique for r in refs]) | ~overlapping) & decided
+    if query == "contacts":  # contacts report a normal only for pairs in contact
+        unique &= np.isfinite(value) & overlapping
+    np.testing.assert_allclose(normal(query, swapped)[unique], -normal(query, out)[unique],
+                               atol=NORMAL_TOLERANCE[dtype])
+
+
+@every_query_class_dtype
+def test_a_common_rigid_motion_moves_points_and_normals_and_keeps_values(query, size_class,
+                                                                        dtype):
+    rng = np.random.default_rng(5)
+    pairs = random_pairs(pool(size_class, dtype), pool(size_class, dtype), BATCH, rng, dtype)
+    refs = references(pairs)
+    sizes = np.array([r.size for r in refs])
+    motion = tuple(m[0] for m in random_motion(pairs.dim, 1, rng))
+    rotation = rotation_matrices(pairs.dim, motion[0][None])[0]
+    out, _ = evaluate(query, pairs)
+    after, _ = evaluate(query, pairs.moved(motion))
+    tol = tolerance(query, dtype) * sizes
+    value, value_after = scalar(query, out), scalar(query, after)
+    decided = np.array([abs(r.value) > 10 * RELATIVE_TOLERANCE[dtype] * r.size for r in refs])
+    if value.dtype == bool:
+        np.testing.assert_array_equal(value_after[decided], value[decided])
+        return
+    finite = np.isfinite(value) & decided
+    np.testing.assert_array_equal(np.isfinite(value_after) & decided, finite)
+    np.testing.assert_array_less(np.abs(value_after[finite] - value[finite]), tol[finite])
+    if normal(query, out) is None:
+        return
+    unique = np.array([r.normal_is_unique or r.depth <= 0 for r in refs]) & finite
+    np.testing.assert_allclose(normal(query, after)[unique],
+                               normal(query, out)[unique] @ rotation.T,
+                               atol=NORMAL_TOLERANCE[dtype])
+    shift = motion[1]
+    if query == "closest_points":
+        for field in ("point_a", "point_b"):
+            np.testing.assert_array_less(np.max(np.abs(
+                getattr(after, field) - (getattr(out, field) @ rotation.T + shift)), axis=1),
+                10 * tol)
+    if query == "contacts":  # the same set of points (the order of ties may change)
+        expected = out.points @ rotation.T + shift
+        for i in np.nonzero(unique)[0]:
+            assert after.valid[i].sum() == out.valid[i].sum(), i
+            gaps = np.linalg.norm(after.points[i][after.valid[i]][:, None]
+                                  - expected[i][out.valid[i]][None], axis=-1)
+            np.testing.assert_array_less(np.min(gaps, axis=1), 10 * tol[i])
+            np.testing.assert_array_less(np.min(gaps, axis=0), 10 * tol[i])
