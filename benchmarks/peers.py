@@ -1,498 +1,644 @@
-"""jaxsat next to its peers: speed and error of every method on the same pairs, in one run.
-
-Cases (one fixed, seeded data set each; every method sees the same pairs):
-  2d-small     random convex polygons with 3-4 vertices (jax2d's limit)
-  2d-polygons  random convex polygons with 4-8 vertices
-  3d-boxes     random boxes
-  3d-hulls     convex hulls of 20 random points
-Methods: jaxsat (penetration; closest_points as "jaxsat-distance"), a vectorised NumPy SAT
-(float32, float64), jax2d, pymunk, collision (SAT.js port), MJX, MuJoCo C (mj_collision,
-mj_geomDistance) and Coal. A method whose package is missing is listed as skipped. Each row
-says its level: depth+normal, signed distance+normal, or contacts (a contact manifold, whose
-deepest contact gives the depth and normal compared here).
-
-For each method and case: pairs/s at each size (best of --repeats calls after a warm-up;
-Python loops are timed on at most --loop-pairs pairs), setup time (JAX compile, MuJoCo model
-build, or object building), errors in depth and normal against the float64 oracle of
-tests/oracle.py on the first --error-pairs pairs, wrong overlap decisions, distance errors on
-separated pairs (distance-level rows), and, where the method has gradients, the error of
-d depth / d translation of b against central finite differences of the oracle on up to
---grad-pairs overlapping pairs.
-
-Writes PREFIX.md (table), PREFIX.json (rows, machine, versions, load, git commit) and
-PREFIX.png (error against pairs/s), PREFIX defaulting to benchmarks/results/peers-<UTC time>.
+"""jaxsat next to its peers (a NumPy SAT, jax2d, pymunk, collision, MJX, MuJoCo, Coal): speed,
+setup time, errors against tests/oracle.py and gradient errors of every method on the same
+pairs, in one run; a missing package is skipped. See benchmarks/README.md.
 
 Usage (from the repository root, with `pip install -e ".[bench]"`):
-    python benchmarks/peers.py --quick                 # a few minutes
-    python benchmarks/peers.py                         # full run, 1e3-1e5 pairs
+    python benchmarks/peers.py --quick        # a few minutes; `python -m jaxsat bench`
+    python benchmarks/peers.py                # 1e3-1e5 pairs; results/peers-cpu-2core.*
     python benchmarks/peers.py --cases 3d-boxes --methods jaxsat mjx mujoco-collision
-    python benchmarks/peers.py --list                  # methods and whether they are installed
+    python benchmarks/peers.py --list         # methods and whether they are installed
 """
 
 from __future__ import annotations
 
-import argparse
-import datetime
-import json
+import dataclasses
+import functools
+import importlib.util
 import math
 import pathlib
-import statistics
 import sys
 import time
+from collections.abc import Callable
 
+import jax
 import numpy as np
 
-HERE = pathlib.Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-from machine import available_memory_bytes, load_average, machine_info  # noqa: E402
-from peers_data import CASES, Reference, gradient_pairs, make_case, reference  # noqa: E402
-from peers_methods import CONTACTS, DISTANCE, METHODS, Method  # noqa: E402
+import jaxsat
 
-RESULTS_DIR = HERE / "results"
-FULL = {"sizes": [1_000, 10_000, 100_000], "error_pairs": 2000, "grad_pairs": 200,
-        "loop_pairs": 20_000, "repeats": 5, "max_call_seconds": 60.0}
-QUICK = {"sizes": [1_000, 10_000], "error_pairs": 500, "grad_pairs": 20, "loop_pairs": 1000,
-         "repeats": 2, "max_call_seconds": 10.0}
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import core  # noqa: E402
+
+CASES = ["2d-small", "2d-polygons", "3d-boxes", "3d-hulls"]
+DEFAULTS = {"sizes": ([1_000, 10_000, 100_000], [1_000, 10_000]), "error_pairs": (2000, 500),
+            "grad_pairs": (200, 20), "loop_pairs": (20_000, 1000), "repeats": (5, 2),
+            "max_call_seconds": (60.0, 10.0), "cases": (CASES, CASES), "budget_seconds": (20, 20),
+            "memory_fraction": (0.3, 0.3)}
 DISTRIBUTIONS = ("jax", "jaxlib", "jaxsat", "numpy", "scipy", "mujoco", "mujoco-mjx", "jax2d",
-                 "pymunk", "collision", "coal", "tqdm", "matplotlib")
-DEPTH_FLOOR = 1e-17
-ANGLE_FLOOR = 1e-15
-"""Zero errors are drawn at these values on the log axes of the plot."""
+                 "pymunk", "collision", "coal")
+DEPTH, CONTACTS, DISTANCE = "depth+normal", "contacts", "signed distance+normal"
+FD_AGREEMENT = 1e-6
+"""Pairs whose two finite-difference gradients differ by more are kinks: skipped."""
 
+@dataclasses.dataclass
+class Prepared:
+    """run(): the timed call; decode(its output) -> (depth, normal, found[, overlap]) float64:
+    depth > 0 overlaps, normal from a to b, found: reported, overlap: the method's decision
+    (default found & depth > 0); setup_s: compile or build time."""
+    run: Callable[[], object]
+    decode: Callable[[object], tuple]
+    setup_s: float
+    memory_bytes: int | None = None
 
-# ----------------------------------------------------------------------------- progress
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """prepare(data, n) -> Prepared; gradient(data, indices) -> d depth / d translation of b;
+    module: what it imports (pip install `install`, default `module`); loop: a Python loop
+    over pairs."""
+    name: str
+    cases: tuple
+    level: str
+    precision: str
+    module: str | None
+    prepare: Callable[[core.DataSet, int], Prepared]
+    gradient: Callable | None = None
+    loop: bool = False
+    install: str | None = None
 
+    def missing(self) -> bool:
+        """Whether `module` cannot be imported (None in sys.modules: not, as for `import`)."""
+        if self.module is None or self.module in sys.modules:
+            return self.module is not None and sys.modules[self.module] is None
+        try:
+            return importlib.util.find_spec(self.module) is None
+        except (ImportError, ValueError):
+            return True
 
-class Progress:
-    """tqdm (or rich-free plain printing) over (case, method) tasks."""
+def _timed(build):
+    start = time.perf_counter()
+    return build(), time.perf_counter() - start
 
-    def __init__(self, total: int, enabled: bool):
-        self.bar = None
-        if enabled:
-            try:
-                from tqdm import tqdm
+def _unit(vectors):
+    vectors = np.asarray(vectors, np.float64)
+    norm = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    return vectors / np.where(norm > 0, norm, 1)
 
-                self.bar = tqdm(total=total, unit="task", dynamic_ncols=True, file=sys.stderr)
-            except ImportError:
-                pass
+def _memo(data: core.DataSet, key: str, build):
+    memo = data.__dict__.setdefault("memo", {})
+    return memo[key] if key in memo else memo.setdefault(key, build())
 
-    def describe(self, text: str) -> None:
-        if self.bar is not None:
-            self.bar.set_description(text)
-        else:
-            print(f"... {text}", file=sys.stderr, flush=True)
+def _jax(function, arguments, decode) -> Prepared:
+    arguments = jax.device_put(arguments)
+    compiled = core.compile_aot(function, *arguments)
+    return Prepared(lambda: jax.block_until_ready(compiled.call(*arguments)), decode,
+                    compiled.seconds, compiled.memory_bytes)
 
-    def echo(self, text: str) -> None:
-        if self.bar is not None:
-            self.bar.write(text)
-        else:
-            print(text, flush=True)
+def _loop(build, query, decode_one) -> Prepared:
+    """A Python loop: build() -> one object per pair (the setup), query(object) -> raw result
+    (timed), decode_one(raw) -> (depth, normal, found, overlap)."""
+    objects, seconds = _timed(build)
+    return Prepared(lambda: [query(o) for o in objects], lambda out: tuple(
+        map(np.array, zip(*map(decode_one, out), strict=True))), seconds)
 
-    def step(self) -> None:
-        if self.bar is not None:
-            self.bar.update(1)
+def _penetration(out, sign=1):
+    depth = sign * np.asarray(out.depth if sign > 0 else out.signed_distance, np.float64)
+    return depth, np.asarray(out.normal, np.float64), np.ones(depth.shape, bool)
 
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+def _jaxsat(query, decode=_penetration, chunked=False):
+    def prepare(data, n):
+        function = functools.partial(jaxsat.query_batch, query, chunk_size=core.CHUNKS[data.name])
+        return _jax(function if chunked else jax.vmap(query), data.inputs(slice(0, n)), decode)
+    return prepare
 
+def _jaxsat_gradient(depth):
+    def gradient(data, indices):
+        a, pose_a, b, pose_b = data.inputs(indices)
+        grad = jax.jit(jax.vmap(jax.grad(lambda t, a, pa, b, r: depth(a, pa, b,
+                                                                     jaxsat.Pose(t, r)))))
+        return np.asarray(grad(pose_b.translation, a, pose_a, b, pose_b.rotation), np.float64)
+    return gradient
 
-# ----------------------------------------------------------------------------- errors
+def _contacts(out):
+    valid = np.asarray(out.valid)
+    depths = np.where(valid, np.asarray(out.depths, np.float64), -np.inf)
+    found = valid.any(axis=1)
+    return np.where(found, depths.max(axis=1), 0.0), np.asarray(out.normal, np.float64), found
 
+def numpy_sat_2d(local_a, rotation_a, translation_a, local_b, rotation_b, translation_b):
+    """Exact vectorised SAT for 2D convex polygons (any float dtype): local_* (n, V, 2)
+    counter-clockwise, padded by repeating vertex 0 (zero axes, masked). The edge normals of
+    both are the Minkowski difference's facet normals: the smallest support gap over them is
+    the exact depth. Returns (depth (n,), normal (n, 2) from a towards b)."""
+    world_a, world_b = (np.einsum("nij,nvj->nvi", r, v) + t[:, None] for v, r, t in (
+        (local_a, rotation_a, translation_a), (local_b, rotation_b, translation_b)))
+    edges = [np.roll(w, -1, axis=1) - w for w in (world_a, world_b)]
+    axes = np.concatenate([np.stack([e[..., 1], -e[..., 0]], -1) * sign
+                           for e, sign in zip(edges, (1, -1), strict=True)], axis=1)
+    length = np.linalg.norm(axes, axis=-1)
+    axes = axes / np.where(length > 0, length, 1)[..., None]
+    gaps = np.where(length > 0, np.einsum("nkd,nvd->nkv", axes, world_a).max(-1)
+                    - np.einsum("nkd,nvd->nkv", axes, world_b).min(-1), np.inf)
+    best = np.argmin(gaps, axis=1)[:, None]
+    return np.take_along_axis(gaps, best, 1)[:, 0], np.take_along_axis(axes, best[..., None],
+                                                                       1)[:, 0]
 
-def angle_degrees(normal: np.ndarray, reference_normal: np.ndarray) -> np.ndarray:
+def numpy_sat(dtype):
+    def prepare(data, n):
+        def build():
+            size = 4 if data.name == "2d-small" else 8
+            table = np.stack([np.concatenate([p, np.repeat(p[:1], size - len(p), 0)])
+                              for p in data.points]).astype(dtype)
+            return [x[s, :n].astype(dtype) for s in (0, 1) for x in (
+                table[data.pick], data.rotation, data.translation)]
+        arguments, seconds = _timed(build)
+        return Prepared(lambda: numpy_sat_2d(*arguments), lambda out: (
+            out[0].astype(np.float64), out[1].astype(np.float64), np.ones(n, bool)), seconds)
+    return prepare
+
+def _jax2d_bodies(data, indices):
+    """(a, b) jax2d RigidBody batches: clockwise vertices padded with zeros to 4."""
+    from jax2d.sim_state import RigidBody
+    table = np.zeros((len(data.points), 4, 2), np.float32)
+    for i, points in enumerate(data.points):
+        table[i, :len(points)] = points[::-1]  # jax2d wants clockwise
+    counts = np.array([len(p) for p in data.points], np.int32)
+    n, f32 = len(indices), np.float32
+    zeros, ones = np.zeros(n, f32), np.ones(n, f32)
+    return [RigidBody(
+        position=data.translation[s, indices].astype(f32),
+        rotation=data.angle[s, indices].astype(f32), velocity=np.zeros((n, 2), f32),
+        angular_velocity=zeros, inverse_mass=ones, inverse_inertia=ones, friction=ones,
+        restitution=zeros, collision_mode=np.ones(n, np.int32), active=np.ones(n, bool),
+        n_vertices=counts[data.pick[s, indices]], vertices=table[data.pick[s, indices]],
+        radius=zeros) for s in (0, 1)]
+
+def _jax2d_manifolds():
+    from jax2d.sim_state import CollisionManifold
+    z = lambda *shape: np.zeros(shape, np.float32)  # noqa: E731
+    return CollisionManifold(normal=z(2, 2), penetration=z(2), collision_point=z(2, 2),
+                             active=np.zeros(2, bool), acc_impulse_normal=z(2),
+                             acc_impulse_tangent=z(2), restitution_velocity_target=z(2))
+
+def jax2d_prepare(data, n):
+    from jax2d.collision import generate_manifolds_polygon_polygon as collide
+    # As jax2d's engine does: vmap the pair function over polygon pairs.
+    return _jax(jax.vmap(collide, in_axes=(0, 0, None)),
+                (*_jax2d_bodies(data, np.arange(n)), _jax2d_manifolds()),
+                lambda out: (np.asarray(out.penetration[:, 0], np.float64),
+                             np.asarray(out.normal[:, 0], np.float64),
+                             np.asarray(out.active[:, 0])))
+
+def jax2d_gradient(data, indices):
+    from jax2d.collision import generate_manifolds_polygon_polygon as collide
+    def depth(position_b, a, b, manifolds):
+        return collide(a, b.replace(position=position_b), manifolds).penetration[0]
+    a, b = _jax2d_bodies(data, indices)
+    grad = jax.jit(jax.vmap(jax.grad(depth), in_axes=(0, 0, 0, None)))
+    return np.asarray(grad(b.position, a, b, _jax2d_manifolds()), np.float64)
+
+def _pymunk_contacts(points, flip=1.0):
+    if points is None or not points.points:
+        return 0.0, (0.0, 0.0), False, False
+    depth = -min(p.distance for p in points.points)
+    return depth, flip * np.array(tuple(points.normal)), True, depth > 0
+
+def pymunk_prepare(data, n):
+    import pymunk
+    def poly(s, i):
+        body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+        body.position, body.angle = tuple(data.translation[s, i]), float(data.angle[s, i])
+        shape = pymunk.Poly(body, [tuple(p) for p in data.points[data.pick[s, i]]])
+        shape.cache_bb()  # shapes_collide reads the cached world vertices
+        return shape
+    def collide(pair):
+        try:
+            return pair[0].shapes_collide(pair[1])
+        except AssertionError:  # pymunk 7.3 asserts on a contact set with no point (apart)
+            return None
+    return _loop(lambda: [(poly(0, i), poly(1, i)) for i in range(n)], collide, _pymunk_contacts)
+
+PYMUNK_SPACING = 8.0
+"""Grid spacing of the pairs in the pymunk Space (shapes < 2 across, centres within 3)."""
+
+def pymunk_space_prepare(data, n):
+    """All pairs in one Space, each in its own grid cell; timed: `Space.step` (broad phase,
+    narrow phase, solver; 1 iteration, a step of 1e-9 s). a is static, b dynamic."""
+    import pymunk
+    columns = int(np.ceil(np.sqrt(n)))
+    cells = PYMUNK_SPACING * np.stack([np.arange(n) % columns, np.arange(n) // columns], 1)
+    def build():
+        space, shapes_b = pymunk.Space(), {}
+        space.iterations = 1
+        for i in range(n):
+            for s, body in enumerate((pymunk.Body(body_type=pymunk.Body.STATIC),
+                                      pymunk.Body(1.0, 1.0))):
+                body.position = tuple(data.translation[s, i] + cells[i])
+                body.angle = float(data.angle[s, i])
+                shape = pymunk.Poly(body, [tuple(p) for p in data.points[data.pick[s, i]]])
+                space.add(body, shape)
+                shapes_b.update({shape: i} if s else {})
+        return space, shapes_b
+    (space, shapes_b), seconds = _timed(build)
+    def decode(_):
+        depth, normal, found = np.zeros(n), np.zeros((n, 2)), np.zeros(n, bool)
+        for shape, i in shapes_b.items():
+            def read(arbiter, i=i, shape=shape):
+                flip = -1.0 if arbiter.shapes[0] is shape else 1.0  # normal: a to b
+                depth[i], normal[i], found[i], _ = _pymunk_contacts(arbiter.contact_point_set,
+                                                                    flip)
+            shape.body.each_arbiter(read)
+        return depth, normal, found
+    return Prepared(lambda: space.step(1e-9), decode, seconds)
+
+def collision_prepare(data, n):
+    import collision
+    def poly(s, i):
+        return collision.Poly(collision.Vector(*data.translation[s, i]), [
+            collision.Vector(*p) for p in data.points[data.pick[s, i]]], float(data.angle[s, i]))
+    def collide(pair):
+        response = collision.Response()
+        hit = collision.collide(*pair, response)
+        return hit, response.overlap, (response.overlap_n.x, response.overlap_n.y)
+    return _loop(lambda: [(poly(0, i), poly(1, i)) for i in range(n)], collide,
+                 lambda out: (out[1] if out[0] else 0.0, out[2], True, out[0]))
+
+def _mesh_spec(data):
+    import mujoco
+    spec = mujoco.MjSpec()
+    for k, points in enumerate(data.points if data.half_extents is None else []):
+        mesh = spec.add_mesh()
+        mesh.name, mesh.uservert = f"hull{k}", points.flatten().tolist()
+    return spec
+
+def _mujoco_pool(data):
+    """A compiled MjModel with one mesh geom per pool hull (None for boxes)."""
+    import mujoco
+    def build():
+        spec = _mesh_spec(data)
+        for k in range(len(data.points)):
+            geom = spec.worldbody.add_body(mocap=True).add_geom()
+            geom.type, geom.meshname = mujoco.mjtGeom.mjGEOM_MESH, f"hull{k}"
+        return spec.compile()
+    return None if data.half_extents is not None else _memo(data, "mujoco", build)
+
+def _geom_frames(data, pool, s, indices):
+    """World positions and rotations of side s's geoms. MuJoCo re-centres a mesh on its
+    centre of mass and principal axes: the shape at (R, t) is the geom at (R quat, R pos + t)."""
+    pick, rotation, translation = (x[s, indices] for x in (data.pick, data.rotation,
+                                                           data.translation))
+    if pool is None:
+        return translation, rotation
+    import mujoco
+    offsets = np.zeros((pool.ngeom, 9))
+    for g, quat in enumerate(pool.geom_quat):
+        mujoco.mju_quat2Mat(offsets[g], quat)
+    return (np.einsum("nij,nj->ni", rotation, pool.geom_pos[pick]) + translation,
+            rotation @ offsets.reshape(-1, 3, 3)[pick])
+
+MUJOCO_CHUNK = 10_000
+"""Pairs per MuJoCo model: compiling explicit pairs costs time quadratic in their number."""
+
+def _mujoco_models(data, n):
+    """[(start, model, data)]: each model holds explicit geom pairs (i, k + i) for k pairs, all
+    a geoms in one mocap body and all b geoms in another (one body per geom would make
+    mj_collision allocate a bodies x bodies matrix), contype collisions off, world poses
+    written to geom_xpos / geom_xmat."""
+    import mujoco
+    pool, models = _mujoco_pool(data), []
+    for start in range(0, n, MUJOCO_CHUNK):
+        stop = min(n, start + MUJOCO_CHUNK)
+        count, spec = stop - start, _mesh_spec(data)
+        spec.memory = 2**22 + count * 8 * 1024  # room for up to 8 contacts per pair
+        for s, side in enumerate("ab"):
+            body = spec.worldbody.add_body(mocap=True)
+            for i in range(start, stop):
+                geom, k = body.add_geom(), int(data.pick[s, i])
+                geom.name, geom.contype, geom.conaffinity = f"{side}{i}", 0, 0
+                if pool is None:
+                    geom.type, geom.size = mujoco.mjtGeom.mjGEOM_BOX, data.half_extents[k]
+                else:
+                    geom.type, geom.meshname = mujoco.mjtGeom.mjGEOM_MESH, f"hull{k}"
+        for i in range(start, stop):
+            pair = spec.add_pair()
+            pair.geomname1, pair.geomname2 = f"a{i}", f"b{i}"
+        model = spec.compile()
+        assert model.geom(count).name == f"b{start}"  # a geoms first, then b geoms
+        state = mujoco.MjData(model)
+        for s in (0, 1):
+            position, rotation = _geom_frames(data, pool, s, np.arange(start, stop))
+            state.geom_xpos[s * count:(s + 1) * count] = position
+            state.geom_xmat[s * count:(s + 1) * count] = rotation.reshape(count, 9)
+        models.append((start, model, state))
+    return models
+
+def mujoco_collision_prepare(data, n):
+    import mujoco
+    models, seconds = _timed(lambda: _mujoco_models(data, n))
+    def run():
+        for _, model, state in models:
+            mujoco.mj_collision(model, state)
+        return [state.ncon for _, _, state in models]
+    def decode(counts):
+        depth, normal, found = np.full(n, -np.inf), np.zeros((n, 3)), np.zeros(n, bool)
+        for (start, _, state), count in zip(models, counts, strict=True):
+            c = state.contact
+            geom1, geom2 = np.asarray(c.geom1[:count]), np.asarray(c.geom2[:count])
+            dist, frame = np.asarray(c.dist[:count]), np.asarray(c.frame[:count])
+            flip = np.where(geom1 > geom2, -1.0, 1.0)  # frame normal: from geom1 to geom2
+            for k, pair in enumerate(start + np.minimum(geom1, geom2)):
+                found[pair] = True
+                if -dist[k] > depth[pair]:
+                    depth[pair], normal[pair] = -dist[k], flip[k] * frame[k, :3]
+        return np.where(found, depth, 0.0), normal, found
+    return Prepared(run, decode, seconds)
+
+def mujoco_distance_prepare(data, n):
+    import mujoco
+    fromto = np.zeros(6)
+    def distance(pair):
+        return mujoco.mj_geomDistance(*pair, 10.0, fromto), fromto.copy()
+    def decode_one(out):
+        # fromto: from a's point to b's apart, from b's into a's overlapping
+        distance, fromto = out
+        return (-distance, _unit(fromto[3:] - fromto[:3]) * (-1 if distance < 0 else 1), True,
+                distance < 0)
+    return _loop(lambda: [(model, state, i, model.ngeom // 2 + i) for _, model, state in
+                          _mujoco_models(data, n) for i in range(model.ngeom // 2)],
+                 distance, decode_one)
+
+def _mjx_meshes(data, pool):
+    """Stacked ConvexMesh fields (vert, face, face_normal, edge, edge_face_normal) of the pool
+    hulls from MJX's own mesh processing, padded to common sizes by repeating entries."""
+    def build():
+        from mujoco.mjx._src import mesh
+        meshes, stacked = [mesh.convex(pool, k) for k in range(pool.nmesh)], []
+        for field in ("vert", "face", "face_normal", "edge", "edge_face_normal"):
+            arrays = [np.asarray(getattr(m, field)) for m in meshes]
+            if field == "face":  # every face padded to the most vertices, as the driver does
+                width = max(a.shape[1] for a in arrays)
+                arrays = [np.pad(a, ((0, 0), (0, width - a.shape[1]), (0, 0)), "edge")
+                          for a in arrays]
+            rows = max(a.shape[0] for a in arrays)
+            array = np.stack([np.concatenate([a, np.repeat(a[:1], rows - len(a), 0)])
+                              for a in arrays])
+            stacked.append(array.astype(np.float32) if array.dtype.kind == "f" else array)
+        return tuple(stacked)
+    return _memo(data, "mjx", build)
+
+def _mjx_arguments(data, indices):
+    """((pos, mat, size) of a, the same of b[, mesh fields of a, of b]), float32."""
+    boxes = data.half_extents is not None
+    pool, geoms, meshes = None if boxes else _mujoco_pool(data), [], []
+    for s in (0, 1):
+        position, rotation = _geom_frames(data, pool, s, indices)
+        pick = data.pick[s, indices]
+        size = data.half_extents[pick] if boxes else np.zeros_like(position)
+        geoms.append(tuple(np.asarray(x, np.float32) for x in (position, rotation, size)))
+        if not boxes:
+            meshes.append(tuple(field[pick] for field in _mjx_meshes(data, pool)))
+    return (*geoms, *meshes)
+
+def _mjx_batched(boxes: bool):
+    """MJX's _box_box or _convex_convex without the Model/Data plumbing, vmapped over pairs:
+    distances (n, 4), points (n, 4, 3) and contact frames (n, 4, 3, 3)."""
+    from mujoco.mjx._src import collision_convex, math, mesh
+    from mujoco.mjx._src.collision_types import ConvexInfo, GeomInfo
+    def framed(collide):
+        def pair(info_a, info_b):
+            dist, pos, normal = collide(info_a, info_b)
+            return dist, pos, jax.vmap(math.make_frame)(normal)
+        return pair
+    def batched(geom_a, geom_b, mesh_a=(), mesh_b=()):
+        if boxes:
+            infos = [mesh.box(GeomInfo(*geom)) for geom in (geom_a, geom_b)]
+            axes = jax.tree.map(lambda x: None, infos[0]).replace(pos=0, mat=0, size=0, face=0,
+                                                                  vert=0)
+            return jax.vmap(framed(collision_convex._box_box), in_axes=(axes, axes))(*infos)
+        infos = [ConvexInfo(*geom_a, *mesh_a), ConvexInfo(*geom_b, *mesh_b)]
+        return jax.vmap(framed(collision_convex._convex_convex))(*infos)
+    return batched
+
+def _decode_mjx(out):
+    dist, _, frame = (np.asarray(x, np.float64) for x in out)
+    best = np.argmin(dist, axis=1)
+    dist, normal = dist[np.arange(len(best)), best], frame[np.arange(len(best)), best, 0]
+    return -dist, normal, dist < 0
+
+def mjx_prepare(data, n):
+    return _jax(_mjx_batched(data.half_extents is not None), _mjx_arguments(data, np.arange(n)),
+                _decode_mjx)
+
+def mjx_gradient(data, indices):
+    batched = _mjx_batched(data.half_extents is not None)
+    geom_a, geom_b, *meshes = _mjx_arguments(data, indices)
+    def total_depth(position_b, geom_a, rest_b, meshes):
+        # pairs are independent: the gradient of the sum is each pair's gradient
+        return -jax.numpy.sum(jax.numpy.min(batched(geom_a, (position_b, *rest_b),
+                                                    *meshes)[0], axis=1))
+    gradient = jax.jit(jax.grad(total_depth))(geom_b[0], geom_a, geom_b[1:], tuple(meshes))
+    return np.asarray(gradient, np.float64)
+
+def coal_prepare(data, n):
+    import coal
+    def geometry(points, k):
+        if data.half_extents is not None:
+            return coal.Box(*(2 * data.half_extents[k]))
+        vertices = coal.StdVec_Vec3s()
+        for point in points:
+            vertices.append(np.asarray(point, np.float64))
+        return coal.Convex.convexHull(vertices, False, "")
+    def build():
+        shapes = [geometry(points, k) for k, points in enumerate(data.points)]
+        return [tuple(x for s in (0, 1) for x in (shapes[data.pick[s, i]], coal.Transform3s(
+            data.rotation[s, i], data.translation[s, i]))) for i in range(n)]
+    request, result = coal.DistanceRequest(), coal.DistanceResult()
+    request.enable_signed_distance = True
+    def distance(pair):
+        result.clear()
+        return coal.distance(*pair, request, result), tuple(result.normal)
+    return _loop(build, distance, lambda out: (-out[0], _unit(out[1]), True, out[0] < 0))
+
+TWO_D, THREE_D, ALL = ("2d-small", "2d-polygons"), ("3d-boxes", "3d-hulls"), tuple(CASES)
+METHODS: dict[str, Method] = {m.name: m for m in (
+    Method("jaxsat", ALL, DEPTH, "float32", "jaxsat", _jaxsat(jaxsat.penetration),
+           _jaxsat_gradient(lambda *x: jaxsat.penetration(*x).depth)),
+    Method("jaxsat-chunked", ALL, DEPTH, "float32", "jaxsat",
+           _jaxsat(jaxsat.penetration, chunked=True)),
+    Method("jaxsat-distance", ALL, DISTANCE, "float32", "jaxsat",
+           _jaxsat(jaxsat.closest_points, lambda out: _penetration(out, -1)),
+           _jaxsat_gradient(lambda *x: -jaxsat.signed_distance(*x))),
+    Method("jaxsat-contacts", ALL, CONTACTS, "float32", "jaxsat",
+           _jaxsat(jaxsat.contacts, _contacts)),
+    *(Method(f"numpy-sat-f{bits}", TWO_D, DEPTH, f"float{bits}", None, numpy_sat(f"float{bits}"))
+      for bits in (32, 64)),
+    Method("jax2d", ("2d-small",), CONTACTS, "float32", "jax2d", jax2d_prepare, jax2d_gradient),
+    Method("pymunk", TWO_D, CONTACTS, "float64", "pymunk", pymunk_prepare, loop=True),
+    Method("pymunk-space", TWO_D, CONTACTS, "float64", "pymunk", pymunk_space_prepare),
+    Method("collision", TWO_D, DEPTH, "float64", "collision", collision_prepare, loop=True),
+    Method("mjx", THREE_D, CONTACTS, "float32", "mujoco.mjx", mjx_prepare, mjx_gradient,
+           install="mujoco-mjx"),
+    Method("mujoco-collision", THREE_D, CONTACTS, "float64", "mujoco", mujoco_collision_prepare),
+    Method("mujoco-distance", THREE_D, DISTANCE, "float64", "mujoco", mujoco_distance_prepare,
+           loop=True),
+    Method("coal", THREE_D, DISTANCE, "float64", "coal", coal_prepare, loop=True))}
+"""Every method, by name (`--list` prints them with their level, dtype and status)."""
+
+def angle_degrees(normal, reference):
     """Angle between each normal and the reference (atan2: accurate near 0); 180 for zero."""
-    cosine = np.sum(normal * reference_normal, axis=1)
-    if normal.shape[1] == 2:
-        sine = np.abs(normal[:, 0] * reference_normal[:, 1] - normal[:, 1] * reference_normal[:, 0])
-    else:
-        sine = np.linalg.norm(np.cross(normal, reference_normal), axis=1)
-    zero = np.linalg.norm(normal, axis=1) == 0
-    return np.where(zero, 180.0, np.degrees(np.arctan2(sine, cosine)))
+    cosine = np.sum(normal * reference, axis=1)
+    sine = (np.abs(normal[:, 0] * reference[:, 1] - normal[:, 1] * reference[:, 0])
+            if normal.shape[1] == 2 else np.linalg.norm(np.cross(normal, reference), axis=1))
+    return np.where(np.linalg.norm(normal, axis=1) == 0, 180.0,
+                    np.degrees(np.arctan2(sine, cosine)))
 
-
-def error_stats(method: Method, ref: Reference, depth, normal, found, says_overlap=None) -> dict:
-    """Errors of one method's decoded output on the reference pairs.
-
-    Depth and normal errors are over the pairs that overlap (oracle depth > 1e-6) and that the
-    method reports (contact-level methods report only pairs in contact; a missed pair counts as
-    a wrong overlap decision instead); normals only where the oracle normal is unique.
-    """
-    overlap, separated = ref.overlapping, ref.separated
-    if says_overlap is None:
-        says_overlap = found & (depth > 0)
-    measured = overlap & found
-    stats = {
-        "pairs": int(len(depth)),
-        "overlapping": int(overlap.sum()),
-        "wrong_overlap": int(np.sum((overlap & ~says_overlap) | (separated & says_overlap))),
-        "missed": int(np.sum(overlap & ~found)),
-    }
-    depth_error = np.abs(depth - ref.depth)[measured]
+def error_stats(method, ref: core.Reference, depth, normal, found, says=None) -> dict:
+    """Errors on the pairs that overlap and that the method reports (a missed pair counts as
+    a wrong overlap decision); normals where the oracle's is unique."""
+    overlap, apart = ref.overlapping, ref.separated
+    says, measured = found & (depth > 0) if says is None else says, overlap & found
     angles = angle_degrees(normal, ref.normal)[measured & ref.normal_is_unique]
-    if len(depth_error):
-        stats.update(depth_error_max=float(depth_error.max()),
-                     depth_error_median=float(np.median(depth_error)),
-                     worst_depth_pair=int(np.flatnonzero(measured)[np.argmax(depth_error)]))
+    depth_error = np.abs(depth - ref.depth)[measured]
+    out = {"pairs": len(depth), "overlapping": int(overlap.sum()),
+           "wrong_overlap": int(np.sum((overlap & ~says) | (apart & says))),
+           "missed": int(np.sum(overlap & ~found)), **core.stats("depth_error", depth_error),
+           **core.stats("normal_error", angles, "_deg"), **(core.stats("distance_error", np.abs(
+               -depth - ref.distance)[apart]) if method.level == DISTANCE else {})}
     if len(angles):
-        stats.update(normal_error_max_deg=float(angles.max()),
-                     normal_error_median_deg=float(np.median(angles)),
-                     normals_over_1deg=float(np.mean(angles > 1.0)), normals_compared=len(angles))
-    if method.level == DISTANCE and separated.any():
-        distance_error = np.abs(-depth - ref.distance)[separated]
-        stats.update(distance_error_max=float(distance_error.max()),
-                     distance_error_median=float(np.median(distance_error)))
-    return stats
+        out.update(normals_over_1deg=float(np.mean(angles > 1.0)), normals_compared=len(angles))
+    return out
 
-
-def gradient_stats(method: Method, data, indices, expected) -> dict:
-    if method.gradient is None or len(indices) == 0:
-        return {}
-    gradient = method.gradient(data, indices)
-    error = np.linalg.norm(gradient - expected, axis=1)
-    finite = np.isfinite(error)
-    return {"grad_pairs": int(len(indices)), "grad_error_max": float(np.max(error[finite]))
-            if finite.any() else math.inf, "grad_error_median": float(np.median(error[finite]))
-            if finite.any() else math.inf, "grad_nonfinite": int(np.sum(~finite))}
-
-
-# ----------------------------------------------------------------------------- timing
-
-
-def time_calls(run, repeats: int, budget_s: float):
-    """(wall times of up to `repeats` calls after a warm-up, last output)."""
-    out = run()
-    times: list[float] = []
-    while len(times) < repeats:
-        start = time.perf_counter()
-        out = run()
-        times.append(time.perf_counter() - start)
-        if sum(times) > budget_s:
+def gradient_pairs(data, ref: core.Reference, count: int):
+    """(indices, d depth / d translation of b) of the first `count` overlapping pairs with a
+    unique normal and no kink within the finite-difference steps."""
+    indices, gradients, columns = [], [], data.params.shape[-1] + np.arange(data.dim)
+    for i in np.flatnonzero(ref.overlapping & ref.normal_is_unique):
+        if len(indices) == count:
             break
-    return times, out
+        gradient, smooth = core.oracle_gradient(data, int(i), columns, FD_AGREEMENT)
+        if smooth:
+            indices.append(int(i))
+            gradients.append(-gradient)
+    return np.array(indices, int), np.array(gradients).reshape(-1, data.dim)
 
-
-def measure(method: Method, data, ref: Reference, grads, args, progress: Progress) -> dict:
+def measure(method, data, ref, grads, args) -> dict:
     """One row: pairs/s per size, setup time, errors and gradient errors."""
-    started = time.perf_counter()
-    row = measure_row(method, data, ref, grads, args, progress)
-    row["wall_s"] = round(time.perf_counter() - started, 1)
-    return row
-
-
-def measure_row(method: Method, data, ref: Reference, grads, args, progress: Progress) -> dict:
-    row = {"case": data.case, "method": method.name, "level": method.level,
+    sizes, count = {}, len(ref.depth)
+    row = {"case": data.name, "method": method.name, "level": method.level,
            "precision": method.precision, "gradients": "jax.grad" if method.gradient else "no",
-           "note": method.note, "setup": method.setup, "sizes": {}}
-    missing = method.missing()
-    if missing:
-        row["skipped"] = f"not installed: {', '.join(missing)} (pip install {method.install})"
+           "sizes": sizes}
+    if method.missing():
+        row["skipped"] = (f"not installed: {method.module} "
+                          f"(pip install {method.install or method.module})")
         return row
-    seconds_per_pair, previous, decoded = None, None, None
-    error_count = len(ref.depth)
+    per_pair, decoded, timed = 0.0, None, {}
     for n in args.sizes:
         k = min(n, args.loop_pairs) if method.loop else n
-        progress.describe(f"{data.case} {method.name} n={n:,}")
-        if previous is not None and previous["timed_pairs"] == k:
-            row["sizes"][n] = dict(previous)
-            continue
-        if seconds_per_pair is not None and seconds_per_pair * k > args.max_call_seconds:
-            row["sizes"][n] = {"skipped": f"~{seconds_per_pair * k:.0f} s per call "
-                                          f"> --max-call-seconds {args.max_call_seconds:g}"}
+        if k in timed or core.too_big(args, seconds=per_pair * k):
+            sizes[n] = dict(timed.get(k) or {"skipped": core.too_big(args, seconds=per_pair * k)})
             continue
         try:
             prepared = method.prepare(data, k)
-            available = available_memory_bytes()
-            if (prepared.memory_bytes and available
-                    and prepared.memory_bytes > args.memory_fraction * available):
-                row["sizes"][n] = {"skipped": f"needs {prepared.memory_bytes / 2**30:.1f} GiB"}
+            if core.too_big(args, prepared.memory_bytes):
+                sizes[n] = {"skipped": core.too_big(args, prepared.memory_bytes)}
                 break
-            times, out = time_calls(prepared.run, args.repeats, args.budget_seconds)
-            if decoded is None and k >= error_count:
-                decoded = [x[:error_count] for x in prepared.decode(out)]
-            del out
+            timing = core.time_calls({"": prepared.run}, args.repeats, args.budget_seconds,
+                                     block=False)[""]
+            if decoded is None and k >= count:
+                decoded = [x[:count] for x in prepared.decode(timing.output)]
         except Exception as error:  # noqa: BLE001 - a failing peer is reported, not fatal
-            row["sizes"][n] = {"failed": f"{type(error).__name__}: {error}"[:300]}
+            sizes[n] = {"failed": f"{type(error).__name__}: {error}"[:300]}
             break
-        best = min(times)
-        seconds_per_pair = best / k
-        previous = {"timed_pairs": k, "pairs_per_second": k / best, "best_s": best,
-                    "median_s": statistics.median(times), "calls": len(times),
-                    "setup_s": prepared.setup_s, "memory_bytes": prepared.memory_bytes}
-        row["sizes"][n] = previous
+        per_pair = timing.best / k
+        sizes[n] = timed[k] = {"timed_pairs": k, "pairs_per_second": k / timing.best,
+                               "best_s": timing.best, "median_s": timing.median,
+                               "calls": len(timing.times), "setup_s": prepared.setup_s,
+                               "memory_bytes": prepared.memory_bytes}
         row.setdefault("setup_s", prepared.setup_s)
     try:
         if decoded is None:
-            progress.describe(f"{data.case} {method.name} errors")
-            prepared = method.prepare(data, error_count)
+            prepared = method.prepare(data, count)
             decoded = prepared.decode(prepared.run())
             row.setdefault("setup_s", prepared.setup_s)
         row["errors"] = error_stats(method, ref, *decoded)
-        progress.describe(f"{data.case} {method.name} gradients")
-        row["errors"].update(gradient_stats(method, data, *grads))
+        if method.gradient is not None and len(grads[0]):
+            error = np.linalg.norm(method.gradient(data, grads[0]) - grads[1], axis=1)
+            finite = error[np.isfinite(error)]
+            row["errors"].update(grad_pairs=len(error), grad_nonfinite=len(error) - len(finite),
+                                 **core.stats("grad_error", finite) or {"grad_error_max": math.inf})
     except Exception as error:  # noqa: BLE001
         row["errors_failed"] = f"{type(error).__name__}: {error}"[:300]
     return row
 
-
-# ----------------------------------------------------------------------------- output
-
-
-def _g(value, digits: int = 2) -> str:
-    if value is None:
-        return "-"
-    if value == 0:
-        return "0"
-    return f"{value:.{digits}g}" if abs(value) >= 1e-3 and abs(value) < 1e5 else \
-        f"{value:.{digits - 1}e}"
-
-
 def size_cell(cell: dict | None) -> str:
-    if not cell:
-        return "-"
-    if "skipped" in cell:
-        return "skipped"
-    if "failed" in cell:
-        return "failed"
-    return f"{cell['pairs_per_second']:.2g}"
-
+    return next((key for key in ("skipped", "failed") if key in cell),
+                f"{cell.get('pairs_per_second', 0):.2g}") if cell else "-"
 
 def row_notes(row: dict) -> str:
-    notes = []
     if "skipped" in row:
         return row["skipped"]
-    timed = {cell.get("timed_pairs") for n, cell in row["sizes"].items()
-             if cell.get("timed_pairs") not in (None, n)}
-    if timed:
-        notes.append(f"loop timed on first {min(timed):,} pairs")
-    for n, cell in row["sizes"].items():
-        for key in ("skipped", "failed"):
-            if key in cell:
-                notes.append(f"{n:,}: {key} ({cell[key]})")
-    errors = row.get("errors", {})
-    if errors.get("missed"):
-        notes.append(f"{errors['missed']} overlapping pairs without contact")
+    timed = [c["timed_pairs"] for n, c in row["sizes"].items() if c.get("timed_pairs", n) != n]
+    notes = ([f"loop timed on first {min(timed):,} pairs"] if timed else []) + [
+        f"{n:,}: {key} ({cell[key]})" for n, cell in row["sizes"].items()
+        for key in ("skipped", "failed") if key in cell]
+    if row.get("errors", {}).get("missed"):
+        notes.append(f"{row['errors']['missed']} overlapping pairs without contact")
     if "errors_failed" in row:
         notes.append(f"errors failed: {row['errors_failed']}")
     return "; ".join(notes)
 
-
-def markdown(rows: list[dict], info: dict, args) -> str:
-    sizes = args.sizes
-    head = ["case", "method", "level", "dtype", *[f"pairs/s {n:.0e}".replace("+0", "")
-                                                  for n in sizes],
-            "setup s", "depth err max / median", "normal err max (deg)", "normals > 1 deg",
-            "wrong overlap", "distance err max (apart)", "grad", "grad err max / median",
-            "notes"]
-    lines = [
-        f"jaxsat peers benchmark, {info['date_utc']}, git {info['git_commit']}",
-        "",
-        f"Machine: {info['cpu_model']}, {info['cpu_count']} CPUs, {info['platform']}; load "
-        f"average (1, 5, 15 min) {info['load_average_start']} at start, "
-        f"{info.get('load_average_end')} at end. Versions: "
-        + ", ".join(f"{k} {v}" for k, v in info["versions"].items() if v) + ".",
-        "",
-        f"Errors on the first {args.error_pairs} pairs of each case against the float64 "
-        "oracle (depth and normal on overlapping pairs the method reports; normal as the "
-        "angle to the oracle's); gradients: d depth / d translation of b against central "
-        f"finite differences of the oracle on up to {args.grad_pairs} overlapping pairs "
-        "(error = norm of the difference). Setup: JAX compile, MuJoCo model build, or object "
-        "building.",
-        "",
-        "| " + " | ".join(head) + " |",
-        "|" + "---|" * len(head),
-    ]
-    for row in rows:
-        errors = row.get("errors", {})
-        cells = [row["case"], row["method"], row["level"], row["precision"],
-                 *[size_cell(row["sizes"].get(n)) for n in sizes],
-                 _g(row.get("setup_s")),
-                 f"{_g(errors.get('depth_error_max'))} / {_g(errors.get('depth_error_median'))}"
-                 if "depth_error_max" in errors else "-",
-                 _g(errors.get("normal_error_max_deg")),
-                 f"{errors['normals_over_1deg']:.1%}" if "normals_over_1deg" in errors else "-",
-                 f"{errors['wrong_overlap']} / {errors['pairs']}" if errors else "-",
-                 _g(errors.get("distance_error_max")), row["gradients"],
-                 f"{_g(errors.get('grad_error_max'))} / {_g(errors.get('grad_error_median'))}"
-                 if "grad_error_max" in errors else "-",
-                 row_notes(row)]
-        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def rate_for_plot(row: dict) -> float | None:
-    """pairs/s at the largest size measured."""
-    rates = [cell["pairs_per_second"] for _, cell in sorted(row["sizes"].items())
-             if "pairs_per_second" in cell]
-    return rates[-1] if rates else None
-
-
-def plot(rows: list[dict], path: pathlib.Path, info: dict) -> bool:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return False
-    markers = dict(zip(METHODS, "o^sv<>DPXph*d8H", strict=False))
-    colours = dict(zip(CASES, ("tab:blue", "tab:orange", "tab:green", "tab:red"), strict=True))
-    figure, axes = plt.subplots(1, 2, figsize=(13, 5.5))
-    panels = (("depth_error_max", DEPTH_FLOOR, "largest depth error"),
-              ("normal_error_max_deg", ANGLE_FLOOR, "largest normal error (degrees)"))
-    for axis, (key, floor, label) in zip(axes, panels, strict=True):
-        for row in rows:
-            rate, errors = rate_for_plot(row), row.get("errors", {})
-            if rate is None or key not in errors:
-                continue
-            axis.scatter(rate, max(errors[key], floor), marker=markers.get(row["method"], "o"),
-                         color=colours.get(row["case"], "k"), s=60,
-                         edgecolors="k" if row["level"] == CONTACTS else "none")
-        axis.set_xscale("log")
-        axis.set_yscale("log")
-        axis.set_xlabel("pairs/s (largest size measured)")
-        axis.set_ylabel(f"{label} (0 drawn at {floor:g})")
-        axis.grid(True, which="major", alpha=0.3)
-    handles = [plt.Line2D([], [], marker=m, linestyle="", color="grey", label=name)
-               for name, m in markers.items() if any(r["method"] == name for r in rows)]
-    handles += [plt.Line2D([], [], marker="s", linestyle="", color=c, label=case)
-                for case, c in colours.items() if any(r["case"] == case for r in rows)]
-    axes[1].legend(handles=handles, fontsize=8, loc="best")
-    figure.suptitle(f"jaxsat and peers: error against pairs/s ({info['cpu_model']}, "
-                    f"{info['cpu_count']} CPUs, load {info['load_average_start']}); "
-                    "black edge: contact-level rows", fontsize=9)
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return True
-
-
-# ----------------------------------------------------------------------------- main
-
-
-def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0],
-        epilog="Cases: " + "; ".join(f"{k}: {v}" for k, v in CASES.items()))
-    parser.add_argument("--quick", action="store_true",
-                        help=f"smaller run: sizes {QUICK['sizes']}, {QUICK['error_pairs']} error "
-                             f"pairs, {QUICK['grad_pairs']} gradient pairs, loops on "
-                             f"{QUICK['loop_pairs']} pairs, {QUICK['repeats']} repeats, calls "
-                             f"of at most {QUICK['max_call_seconds']:g} s")
-    parser.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES))
-    parser.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(METHODS))
-    parser.add_argument("--sizes", type=int, nargs="+",
-                        help=f"pairs per timed call (default {FULL['sizes']})")
-    parser.add_argument("--error-pairs", type=int,
-                        help=f"pairs compared with the oracle (default {FULL['error_pairs']})")
-    parser.add_argument("--grad-pairs", type=int,
-                        help=f"overlapping pairs for gradients (default {FULL['grad_pairs']})")
-    parser.add_argument("--loop-pairs", type=int,
-                        help=f"most pairs a Python loop is timed on (default "
-                             f"{FULL['loop_pairs']})")
-    parser.add_argument("--repeats", type=int,
-                        help=f"timed calls after a warm-up, best reported (default "
-                             f"{FULL['repeats']})")
-    parser.add_argument("--budget-seconds", type=float, default=20.0,
-                        help="stop repeating once the timed calls add up to this "
-                             "(default: %(default)s)")
-    parser.add_argument("--max-call-seconds", type=float,
-                        help="skip a size whose call is estimated from the previous size to "
-                             f"take longer (default {FULL['max_call_seconds']:g}, quick "
-                             f"{QUICK['max_call_seconds']:g})")
-    parser.add_argument("--memory-fraction", type=float, default=0.3,
-                        help="skip a size whose compiled kernel needs more than this fraction "
-                             "of the available memory (default: %(default)s)")
-    parser.add_argument("--pool", type=int, default=256,
-                        help="random shapes per case (default: %(default)s)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
-    parser.add_argument("--output", metavar="PREFIX",
-                        help="write PREFIX.md, PREFIX.json, PREFIX.png (default: "
-                             "benchmarks/results/peers[-quick]-<UTC time>)")
-    parser.add_argument("--no-plot", action="store_true", help="do not draw the PNG")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--list", action="store_true",
-                        help="list the methods, their cases and whether they are installed")
-    args = parser.parse_args(argv)
-    for key, value in (QUICK if args.quick else FULL).items():
-        if getattr(args, key) is None:
-            setattr(args, key, value)
-    args.sizes = sorted(set(args.sizes))
-    if min(args.sizes) < 1 or min(args.error_pairs, args.loop_pairs, args.repeats) < 1:
-        parser.error("sizes, --error-pairs, --loop-pairs and --repeats must be positive")
-    return args
-
-
-def list_methods() -> str:
-    lines = [f"{'method':<17} {'level':<23} {'dtype':<8} {'cases':<45} status"]
-    for method in METHODS.values():
-        missing = method.missing()
-        status = (f"missing {', '.join(missing)} (pip install {method.install})" if missing
-                  else "installed")
-        lines.append(f"{method.name:<17} {method.level:<23} {method.precision:<8} "
-                     f"{' '.join(method.cases):<45} {status}")
-    return "\n".join(lines)
-
-
-def default_prefix(quick: bool) -> pathlib.Path:
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    return RESULTS_DIR / f"peers{'-quick' if quick else ''}-{stamp}"
-
+def markdown(rows: list[dict], args) -> str:
+    def pair(e, key):
+        return f"{core.num(e.get(key + '_max'))} / {core.num(e.get(key + '_median'))}" if (
+            key + "_max") in e else "-"
+    table = [[row["case"], row["method"], row["level"], row["precision"],
+              *[size_cell(row["sizes"].get(n)) for n in args.sizes], core.num(row.get("setup_s")),
+              pair(e, "depth_error"), core.num(e.get("normal_error_max_deg")),
+              f"{e['normals_over_1deg']:.1%}" if "normals_over_1deg" in e else "-",
+              f"{e['wrong_overlap']} / {e['pairs']}" if e else "-",
+              core.num(e.get("distance_error_max")), row["gradients"], pair(e, "grad_error"),
+              row_notes(row)] for row in rows for e in [row.get("errors", {})]]
+    return (f"Errors on the first {args.error_pairs} pairs of each case against the float64 "
+            "oracle (depth and normal on overlapping pairs the method reports; normal as the "
+            "angle to the oracle's); gradients: d depth / d translation of b against central "
+            f"finite differences of the oracle on up to {args.grad_pairs} overlapping pairs "
+            "(error: norm of the difference). Setup: JAX compile, MuJoCo model build, or "
+            "object building.\n\n" + core.markdown_table(
+                ["case", "method", "level", "dtype", *[f"pairs/s {n:.0e}".replace("+0", "")
+                                                       for n in args.sizes],
+                 "setup s", "depth err max / median", "normal err max (deg)", "normals > 1 deg",
+                 "wrong overlap", "distance err max (apart)", "grad", "grad err max / median",
+                 "notes"], table))
 
 def main(argv=None) -> int:
-    args = parse_args(argv)
+    parser = core.parser(__doc__, CASES, limits=core.LIMITS)
+    parser.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(METHODS))
+    for name, help_ in (("--error-pairs", "pairs compared with the oracle"),
+                        ("--grad-pairs", "overlapping pairs for gradients"),
+                        ("--loop-pairs", "most pairs a Python loop is timed on")):
+        parser.add_argument(name, type=int, help=help_)
+    parser.add_argument("--list", action="store_true",
+                        help="list the methods and whether they are installed")
+    args = core.parse(parser, argv, DEFAULTS)
+    args.sizes = sorted(set(args.sizes))
     if args.list:
-        print(list_methods())
+        print(f"{'method':<17} {'level':<23} {'dtype':<8} {'cases':<45} status")
+        for m in METHODS.values():
+            status = (f"missing {m.module} (pip install {m.install or m.module})" if m.missing()
+                      else "installed")
+            print(f"{m.name:<17} {m.level:<23} {m.precision:<8} {' '.join(m.cases):<45} {status}")
         return 0
-    info = machine_info(DISTRIBUTIONS)
-    tasks = [(case, METHODS[name]) for case in args.cases for name in args.methods
-             if case in METHODS[name].cases]
-    progress = Progress(len(tasks) + len(args.cases), enabled=not args.no_progress)
-    progress.echo(f"jaxsat peers benchmark: {info['cpu_model']}, {info['cpu_count']} CPUs, "
-                  f"load {info['load_average_start']}, sizes {args.sizes}, "
-                  f"{args.error_pairs} error pairs")
-    rows: list[dict] = []
-    started = time.perf_counter()
+    info, rows = core.machine_info(DISTRIBUTIONS), []
     for case in args.cases:
-        progress.describe(f"{case}: data and oracle")
-        data = make_case(case, max(max(args.sizes), args.error_pairs), args.pool, args.seed)
-        ref = reference(data, args.error_pairs)
+        data = core.make_data(case, max(max(args.sizes), args.error_pairs), args.pool, args.seed)
+        ref = core.reference(data, args.error_pairs)
         grads = gradient_pairs(data, ref, args.grad_pairs)
-        progress.step()
-        for method_case, method in tasks:
-            if method_case != case:
-                continue
-            row = measure(method, data, ref, grads, args, progress)
-            rows.append(row)
-            progress.echo(f"{case:<12} {method.name:<17} "
-                          + "  ".join(f"{n:.0e}: {size_cell(row['sizes'].get(n))}"
-                                      for n in args.sizes)
-                          + f"  depth err {_g(row.get('errors', {}).get('depth_error_max'))}"
-                          + (f"  [{row_notes(row)}]" if row_notes(row) else ""))
-            progress.step()
-    progress.close()
-    info["load_average_end"] = load_average()
-    info["run_seconds"] = round(time.perf_counter() - started, 1)
-
-    prefix = pathlib.Path(args.output) if args.output else default_prefix(args.quick)
-    prefix.parent.mkdir(parents=True, exist_ok=True)
-
-    def suffixed(suffix: str) -> pathlib.Path:
-        return prefix.parent / (prefix.name + suffix)
-
-    table = markdown(rows, info, args)
-    config = {k: v for k, v in vars(args).items() if k not in ("output", "list")}
-    suffixed(".md").write_text(table)
-    suffixed(".json").write_text(json.dumps(
-        {"machine": info, "config": config, "results": rows}, indent=1, default=str) + "\n")
-    written = [suffixed(".md"), suffixed(".json")]
-    if not args.no_plot and plot(rows, suffixed(".png"), info):
-        written.append(suffixed(".png"))
-    print()
-    print(table)
-    print(f"run took {info['run_seconds']} s; wrote " + ", ".join(str(p) for p in written))
+        for method in (METHODS[name] for name in args.methods if case in METHODS[name].cases):
+            rows.append(row := measure(method, data, ref, grads, args))
+            print(f"{case:<12} {method.name:<17} " + "  ".join(
+                f"{n:.0e}: {size_cell(row['sizes'].get(n))}" for n in args.sizes)
+                + f"  depth err {core.num(row.get('errors', {}).get('depth_error_max'))}",
+                file=sys.stderr, flush=True)
+    core.save(args, "peers", "jaxsat peers benchmark", info, {"rows": rows}, markdown(rows, args))
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,32 +1,22 @@
-"""Scene queries against the brute-force all-pairs narrow phase (float32, 3D).
-
-Scenes: N = 1,000 / 10,000 / 100,000 random boxes or 20-point hulls, randomly rotated and
-placed uniformly in a cube whose side is chosen so that about 1% of the shapes touch another
-(calibrated once on a 5,000-shape scene, then scaled as N^(1/3) to keep the density).
-
-For each scene:
-  * the scene query `jax.jit(jaxsat.collide)` at level "penetration": compile time, the median
-    of `--repeats` timed calls, broad-phase pairs kept, colliding pairs, shapes touching;
-  * the brute-force narrow phase on all N(N-1)/2 pairs, `jaxsat.query_pairs(penetration, ...)`
-    in chunks. It runs in full where it takes under `--brute-force-budget` seconds (estimated
-    from a timed sample); otherwise its time is extrapolated from a sample of `--sample`
-    random pairs, and the table says so. When it runs in full, the colliding pairs of both
-    methods are compared and must be equal.
+"""Scenes and skipped work: what the broad phase (`collide` against all pairs) and each skip in
+jaxsat's SAT (levels, unique axes, Gauss map, AABB check, 2D vs 3D) save, and that the results
+do not change (float32). See benchmarks/README.md. Exit status 1 if results differ.
 
 Usage (from the repository root):
-    python benchmarks/scene.py                       # everything, writes benchmarks/results/
-    python benchmarks/scene.py --sizes 1000 --kinds boxes --no-save
+    python benchmarks/scene.py          # writes results/scene-cpu-2core.{json,md}
+    python benchmarks/scene.py --quick
+    python benchmarks/scene.py --only "Gauss map" scene --sizes 1000 --no-save
 """
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import functools
-import json
+import itertools
 import pathlib
-import statistics
 import sys
 import time
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -35,178 +25,328 @@ import numpy as np
 import jaxsat
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from machine import load_average, machine_info  # noqa: E402
+import core  # noqa: E402
 
-RESULTS_DIR = pathlib.Path(__file__).resolve().parent / "results"
-POOL_SIZE = 64
-CHUNK = 2**16
-TARGET_TOUCHING = 0.01
+CHUNK, BUDGET_S, MIN_ROUNDS = 2**14, 45.0, 3
+DEPTH_TOLERANCE, NORMAL_TOLERANCE = 1e-5, 1e-4
+SIDES = {"3d-boxes": 135.0, "3d-hulls": 118.0}
+"""Cube side with about 1% of 5,000 shapes touching another (calibrated: side *= (touching /
+1%)^(1/3), four times); N shapes fill a cube of side SIDES x (N / 5000)^(1/3)."""
+PRISM_HALF_HEIGHT = 4.0
+"""Prisms are 8 tall; shapes are at most 1.6 across, so the z axis never wins."""
+F32 = np.float32
+UNPRUNED = functools.partial(jaxsat.penetration, prune=False)
 
+@dataclasses.dataclass
+class Variant:
+    """One way of answering the same pairs: `items` answered per call, `seconds` set where
+    the call is extrapolated instead of timed."""
+    name: str
+    work: str
+    call: Callable | None
+    compile_s: float
+    items: int
+    timing: core.Timing | None = None
+    seconds: float | None = None
+    median = property(lambda self: self.seconds or self.timing.median)
 
-def shape_pool(kind: str, rng: np.random.Generator) -> jaxsat.Polytope:
-    """POOL_SIZE random shapes of about unit size, stacked (scenes index into this pool)."""
-    if kind == "boxes":
-        shapes = [jaxsat.box(rng.uniform(0.25, 0.5, 3), dtype=np.float32)
-                  for _ in range(POOL_SIZE)]
-    else:
-        shapes = [jaxsat.polyhedron(rng.normal(size=(20, 3)) * 0.3, max_vertices=20,
-                                    dtype=np.float32) for _ in range(POOL_SIZE)]
-    return jaxsat.stack(shapes)
+def batched(name: str, work: str, query, args) -> Variant:
+    compiled = core.compile_aot(lambda *x: jaxsat.query_batch(query, *x, chunk_size=CHUNK), *args)
+    return Variant(name, work, lambda: compiled.call(*args), compiled.seconds,
+                   len(args[1].translation))
 
+def timed(variants: list[Variant], rounds: int, **options) -> list:
+    options = options or {"budget_s": BUDGET_S, "min_rounds": MIN_ROUNDS}
+    timings = core.time_calls({v.name: v.call for v in variants if v.call}, rounds, **options)
+    for v in variants:
+        v.timing = timings.get(v.name)
+    return [outputs(t.output) for t in timings.values()]
 
-def make_scene(pool: jaxsat.Polytope, count: int, side: float, seed: int):
-    """`count` shapes from the pool at uniform random positions and rotations."""
-    rng = np.random.default_rng(seed)
-    ids = jnp.asarray(rng.integers(0, POOL_SIZE, count))
-    shapes = jax.tree.map(lambda field: field[ids], pool)
-    positions = jnp.asarray(rng.uniform(0, side, (count, 3)), jnp.float32)
-    quaternions = jnp.asarray(rng.normal(size=(count, 4)), jnp.float32)
-    return shapes, jax.vmap(jaxsat.pose3)(positions, quaternions)
+def candidates(a, prune: bool = True) -> str:
+    """The axes a query between two shapes like `a` tests, from the padded sizes."""
+    faces, directions, edges = (a.face_normals.shape[1], a.edge_directions.shape[1],
+                                a.edge_endpoints.shape[1])
+    if a.dim == 2:
+        return f"{faces}+{faces} face normals"
+    if prune and directions > 3:
+        return f"{faces}+{faces} faces, {edges}x{edges} edge pairs (Gauss map)"
+    return f"{faces}+{faces} faces, {directions}x{directions} edge pairs (projection)"
 
+def outputs(result) -> dict:
+    if hasattr(result, "valid"):  # contacts
+        return {"hit": np.asarray(result.valid).any(axis=-1), "normal": result.normal}
+    if hasattr(result, "depth"):
+        return {"hit": np.asarray(result.depth) >= 0, "depth": result.depth,
+                "normal": result.normal}
+    return {"hit": result}
+
+def compare(reference: dict, other: dict, args, booleans_only: bool = False) -> dict:
+    """Booleans, depths and normals of `other` against `reference` on the batch `args`."""
+    hit_ref, hit = np.asarray(reference["hit"]), np.asarray(other["hit"])
+    check = {"pairs": len(hit), "colliding": int(hit_ref.sum()),
+             "booleans_differ": int(np.sum(hit_ref != hit))}
+    check["same"] = check["booleans_differ"] == 0
+    if booleans_only or "depth" not in other or "depth" not in reference:
+        return check
+    difference = np.abs(np.asarray(other["depth"]) - np.asarray(reference["depth"]))
+    normal_ref = np.asarray(reference["normal"], np.float64)
+    normal = np.asarray(other["normal"], np.float64)[:, :normal_ref.shape[1]]  # prisms: xy
+    differ = np.flatnonzero(np.max(np.abs(normal - normal_ref), axis=1) > NORMAL_TOLERANCE)
+    a, pose_a, b, pose_b = (jax.tree.map(lambda leaf: np.asarray(leaf)[differ], x) for x in args)
+    world = [np.einsum("nrk,nvk->nvr", np.asarray(p.rotation, np.float64), np.asarray(
+        s.vertices, np.float64)) + np.asarray(p.translation, np.float64)[:, None]
+             for s, p in ((a, pose_a), (b, pose_b))]
+    gap = [np.einsum("nvk,nk->nv", world[0], n[differ]).max(1)
+           - np.einsum("nvk,nk->nv", world[1], n[differ]).min(1) for n in (normal_ref, normal)]
+    ties = int(np.sum(np.abs(gap[0] - gap[1]) <= DEPTH_TOLERANCE))
+    check.update(depth_max_difference=float(difference.max()),
+                 depths_differ=int(np.sum(difference > DEPTH_TOLERANCE)),
+                 normals_differ=len(differ), normal_ties=ties)
+    check["same"] &= check["depths_differ"] == 0 and ties == len(differ)
+    return check
+
+def describe(check) -> str:
+    """The "same results" cell."""
+    if check is None or isinstance(check, str):
+        return check or "(reference)"
+    if "same" not in check:
+        return "not compared (brute force extrapolated): " + ", ".join(check["notes"])
+    parts = [f"booleans {'equal' if not check['booleans_differ'] else 'DIFFER'}"
+             + (f" ({check['booleans_differ']})" if check["booleans_differ"] else "")]
+    if "depth_max_difference" in check:
+        parts.append(f"depth max diff {check['depth_max_difference']:.1e}"
+                     + (f" ({check['depths_differ']} over tol)" if check["depths_differ"] else ""))
+        ties = f" ({check['normal_ties']} ties)" if check["normal_ties"] else ""
+        untied = check["normals_differ"] - check["normal_ties"]
+        parts.append(f"normals equal{ties}" if not untied else f"{untied} normals DIFFER{ties}")
+    return ("yes: " if check["same"] else "NO: ") + ", ".join(parts + check.get("notes", []))
+
+def rows_of(skip, case, variants, references, checks, unit="pairs/s") -> dict:
+    """Rows: each variant's speed-up over the variants in its `references` and its check."""
+    return {"skip": skip, "case": case, "unit": unit, "load_average": core.load_average(),
+            "rows": [{"variant": v.name, "work": v.work, "compile_s": v.compile_s,
+                      "median_s": v.median, "items_per_s": v.items / v.median,
+                      "speedup": {variants[r].name: variants[r].median / v.median for r in refs},
+                      "check": check}
+                     for v, refs, check in zip(variants, references, checks, strict=True)]}
+
+def levels(kind: str, count: int, seed: int, options) -> dict:
+    args = core.make_data(kind, count, options.pool, seed=seed).inputs()
+    axes = candidates(args[0])
+    variants = [batched("contacts", "penetration + face clipping", jaxsat.contacts, args),
+                batched("penetration", axes, jaxsat.penetration, args),
+                batched("intersects", axes + ", no normal", jaxsat.intersects, args)]
+    manifold, pen, hits = timed(variants, options.repeats)
+    contact = compare(manifold, pen, args, booleans_only=True)
+    normal = float(np.max(np.abs(np.asarray(manifold["normal"]) - np.asarray(pen["normal"]))))
+    contact["notes"] = [f"contact normal = penetration normal (max diff {normal:.0e})"]
+    contact["same"] &= normal == 0.0
+    return rows_of("levels", kind, variants, [[], [0], [1, 0]],
+                   [None, contact, compare(pen, hits, args)])
+
+def unique_axes(kind: str, count: int, seed: int, options) -> dict:
+    data = core.make_data(kind, count, options.pool, seed=seed)
+    unique, every = data.inputs(), data.inputs(unique_axes=False)
+    variants = [batched("unique_axes=False", candidates(every[0]), jaxsat.penetration, every),
+                batched("unique axes", candidates(unique[0]), jaxsat.penetration, unique)]
+    references = [[], [0]]
+    if data.dim == 3:  # the textbook SAT first: every face and every edge-direction pair
+        variants.insert(0, batched("unique_axes=False, prune=False",
+                                   candidates(every[0], prune=False), UNPRUNED, every))
+        references = [[], [0], [0, 1]]
+    results = timed(variants, options.repeats)
+    return rows_of("unique axes", kind, variants, references,
+                   [None] + [compare(results[0], r, unique) for r in results[1:]])
+
+def gauss_map(count: int, seed: int, options) -> dict:
+    args = core.make_data("3d-hulls", count, options.pool, seed=seed).inputs()
+    variants = [batched("prune=False", candidates(args[0], prune=False), UNPRUNED, args),
+                batched("prune=True", candidates(args[0]), jaxsat.penetration, args)]
+    full, pruned = timed(variants, options.repeats)
+    hit = np.asarray(pruned["hit"])
+    select = lambda r: {k: np.asarray(v)[hit] for k, v in r.items()}  # noqa: E731
+    check = compare(select(full), select(pruned), jax.tree.map(lambda x: x[hit], args))
+    check["booleans_differ"] = int(np.sum(hit != np.asarray(full["hit"])))
+    check["same"] &= check["booleans_differ"] == 0
+    gain = np.append(np.asarray(pruned["depth"] - full["depth"])[~hit], 0.0)
+    check["separated_larger_gap"] = int(np.sum(gain > DEPTH_TOLERANCE))
+    check["notes"] = [f"depths and normals on the {hit.sum():,} colliding pairs; on "
+                      f"{check['separated_larger_gap']:,} of {len(gain) - 1:,} separated pairs "
+                      f"prune=False finds a larger gap (by up to {gain.max():.2g})"]
+    return rows_of("Gauss map", "3d-hulls", variants, [[], [0]], [None, check])
+
+def two_d_vs_3d(count: int, seed: int, options) -> dict:
+    data = core.make_data("2d-octagons", count, options.pool, seed=seed)
+    flat = data.inputs()
+    pool = jaxsat.stack([jaxsat.polyhedron(np.concatenate([
+        np.c_[p, np.full(len(p), z)] for z in (-PRISM_HALF_HEIGHT, PRISM_HALF_HEIGHT)]),
+        dtype=F32) for p in data.points])
+    rotation = np.zeros((2, count, 3, 3))
+    rotation[..., :2, :2], rotation[..., 2, 2] = data.rotation, 1.0
+    translation = np.concatenate([data.translation, np.zeros((2, count, 1))], axis=-1)
+    tall = jax.device_put(tuple(x for s in (0, 1) for x in (
+        jax.tree.map(lambda leaf, s=s: leaf[data.pick[s]], pool),
+        jaxsat.Pose(translation[s].astype(F32), rotation[s].astype(F32)))))
+    variants = [batched("3D prisms", candidates(tall[0]), jaxsat.penetration, tall),
+                batched("2D polygons", candidates(flat[0]), jaxsat.penetration, flat)]
+    prisms, polygons = timed(variants, options.repeats)
+    check = compare(polygons, prisms, flat)
+    z_max = float(np.max(np.abs(np.asarray(prisms["normal"])[:, 2])))
+    check["notes"] = [f"3D normal z at most {z_max:.0e}"]
+    check["same"] &= z_max <= NORMAL_TOLERANCE
+    return rows_of("2D vs 3D", "2d-octagons / prisms", variants, [[], [0]], [None, check])
+
+def call_floor(*pair):
+    """A jitted call on the same arguments that does (almost) nothing."""
+    return sum(jnp.ravel(leaf)[0].astype(jnp.float32) for leaf in jax.tree.leaves(pair)) > 0
+
+def aabb_single_calls(kind: str, count: int, seed: int, options, spread) -> dict:
+    args = core.make_data(kind, count, options.pool, seed=seed, spread=spread).inputs()
+    pairs = [jax.tree.map(lambda leaf, i=i: leaf[i], args) for i in range(count)]
+    one = lambda *xs: jax.vmap(jaxsat.intersects)(  # noqa: E731
+        *jax.tree.map(lambda leaf: leaf[None], xs))[0]
+    variants, answers = [], []
+    for name, work, query in (
+            ("penetration depth >= 0", "SAT depth and normal",
+             lambda *xs: jaxsat.penetration(*xs).depth >= 0),
+            ("intersects as a vmap of 1", "SAT minimum, no AABB check", one),
+            ("intersects", "world AABBs, then the SAT minimum under lax.cond", jaxsat.intersects),
+            ("call floor", "no query: reads one entry of every argument", call_floor)):
+        compiled = core.compile_aot(query, *pairs[0])
+        cycle = itertools.cycle(pairs)
+        variants.append(Variant(name, work, lambda c=compiled.call, it=cycle: bool(c(*next(it))),
+                                compiled.seconds, 1))
+        answers.append({"hit": np.array([bool(compiled.call(*p)) for p in pairs])})
+    timed(variants, options.repeats * count, block=False)
+    where = "far apart (AABBs disjoint)" if spread[0] > 2 else "near (about half collide)"
+    return rows_of("AABB check", f"{kind}, {where}, single calls", variants,
+                   [[], [0], [1, 0], []], [None] + [compare(answers[0], h, args)
+                                                   for h in answers[1:3]]
+                   + ["- (dispatch and read-back cost of any call)"], unit="us/call")
+
+def make_scene(kind: str, count: int, side: float, seed: int):
+    """`count` shapes of a 64-shape pool at uniform random positions and rotations."""
+    data = core.make_data(kind, count, pool=64, seed=seed)
+    shapes, poses = data.inputs()[:2]
+    return shapes, jaxsat.Pose(jnp.asarray((data.translation[0] + 1) / 2 * side, F32),
+                               poses.rotation)
 
 def capacity_for(pairs: int) -> int:
     """A power of two with room for twice the expected broad-phase pairs."""
     return 1 << max(int(2 * pairs + 63).bit_length(), 8)
 
-
-def scene_query(shapes, poses, capacity: int):
-    """Compiled scene query at a capacity with no overflow: (compiled, result, capacity)."""
+def scene_query(shapes, poses, capacity: int, level: str):
+    """The compiled scene query at a capacity with no overflow: (compiled, result)."""
     while True:
-        compiled = jax.jit(functools.partial(jaxsat.collide, capacity=capacity)).lower(
-            shapes, poses).compile()
+        compiled = core.compile_aot(functools.partial(
+            jaxsat.collide, capacity=capacity, level=level), shapes, poses).call
         result = jax.block_until_ready(compiled(shapes, poses))
         if int(result.overflow) == 0:
-            return compiled, result, capacity
+            return compiled, result
         capacity = capacity_for(int(result.count))
 
+def colliding(result) -> np.ndarray:
+    return np.asarray(result.pairs)[np.asarray(result.colliding)]
 
-def touching_fraction(result, count: int) -> float:
-    pairs = np.asarray(result.pairs)[np.asarray(result.colliding)]
-    return len(np.unique(pairs)) / count
-
-
-def calibrate_side(pool, rng_seed: int, count: int = 5000) -> float:
-    """Cube side giving about TARGET_TOUCHING of `count` shapes in contact."""
-    side = 40.0
-    for _ in range(4):
-        shapes, poses = make_scene(pool, count, side, rng_seed)
-        _, result, _ = scene_query(shapes, poses, capacity_for(count))
-        fraction = max(touching_fraction(result, count), 1e-4)
-        # For a sparse scene the touching fraction scales as density, i.e. as side^-3.
-        side *= (fraction / TARGET_TOUCHING) ** (1 / 3)
-    return side
-
-
-def all_pairs(count: int) -> np.ndarray:
-    rows, cols = np.triu_indices(count, 1)
-    return np.stack([rows, cols], axis=1).astype(np.int32)
-
-
-@functools.partial(jax.jit, static_argnames="chunk")
-def brute_force(shapes, poses, pairs, chunk: int):
-    hits = jaxsat.query_pairs(jaxsat.penetration, shapes, poses, pairs, chunk_size=chunk)
-    return hits.depth >= 0
-
-
-def time_call(function, *args, repeats: int = 1) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        out = jax.block_until_ready(function(*args))
-        times.append(time.perf_counter() - start)
-    return statistics.median(times), out
-
-
-def run_brute_force(shapes, poses, count, sample: int, budget: float, seed: int) -> dict:
-    """Time the all-pairs narrow phase, in full if it fits the budget, else by a sample."""
-    total = count * (count - 1) // 2
-    rng = np.random.default_rng(seed)
-    sample = min(sample, total)
-    rows = rng.integers(0, count, (sample, 2)).astype(np.int32)
-    sample_pairs = jnp.asarray(rows)
-    brute_force(shapes, poses, sample_pairs, CHUNK).block_until_ready()  # compile
-    sample_time, _ = time_call(brute_force, shapes, poses, sample_pairs, CHUNK)
-    estimate = sample_time * total / sample
-    if estimate > budget:
-        return {"seconds": estimate, "full": False, "sampled_pairs": sample, "colliding": None}
-    pairs = jnp.asarray(all_pairs(count))
-    brute_force(shapes, poses, pairs, CHUNK).block_until_ready()  # compile for this size
-    seconds, colliding = time_call(brute_force, shapes, poses, pairs, CHUNK)
-    found = np.asarray(pairs)[np.asarray(colliding)]
-    return {"seconds": seconds, "full": True, "sampled_pairs": total,
-            "colliding": set(map(tuple, found.tolist()))}
-
-
-def run_case(kind, count, side, args) -> dict:
-    pool = shape_pool(kind, np.random.default_rng(0))
-    shapes, poses = make_scene(pool, count, side * (count / 5000) ** (1 / 3), seed=count)
+def scene(kind: str, count: int, args) -> dict:
+    shapes, poses = make_scene(kind, count, SIDES[kind] * (count / 5000) ** (1 / 3), seed=count)
     start = time.perf_counter()
-    compiled, result, capacity = scene_query(shapes, poses, capacity_for(count // 16))
-    compile_s = time.perf_counter() - start
-    scene_s, result = time_call(compiled, shapes, poses, repeats=args.repeats)
-    colliding = np.asarray(result.pairs)[np.asarray(result.colliding)]
-    brute = run_brute_force(shapes, poses, count, args.sample, args.brute_force_budget, count)
-    row = {"kind": kind, "shapes": count, "capacity": capacity,
-           "broad_phase_pairs": int(result.count), "colliding_pairs": len(colliding),
-           "touching_fraction": touching_fraction(result, count),
-           "scene_seconds": scene_s, "scene_compile_seconds": compile_s,
-           "brute_force_seconds": brute["seconds"], "brute_force_full": brute["full"],
-           "brute_force_pairs_timed": brute["sampled_pairs"],
-           "speedup": brute["seconds"] / scene_s}
-    if brute["full"]:
-        row["equal_to_brute_force"] = set(map(tuple, colliding.tolist())) == brute["colliding"]
-    return row
+    compiled, result = scene_query(shapes, poses, capacity_for(count // 16), args.level)
+    query = Variant("broad phase (collide)", "hashed grid, then SAT on AABB-overlapping pairs",
+                    lambda: compiled(shapes, poses), time.perf_counter() - start, 1)
+    total = count * (count - 1) // 2
+    sample = jnp.asarray(np.random.default_rng(count).integers(
+        0, count, (min(args.sample, total), 2)), jnp.int32)
+    brute = lambda s, p, q: jaxsat.query_pairs(  # noqa: E731
+        core.QUERIES[args.level], s, p, q, chunk_size=2**16)
+    sampled = core.compile_aot(brute, shapes, poses, sample)
+    estimate = core.time_calls({"": lambda: sampled.call(shapes, poses, sample)}, 1)[
+        ""].best * total / len(sample)
+    found, kept = None, colliding(result)
+    if estimate <= args.brute_force_budget:
+        rows, cols = np.triu_indices(count, 1)
+        every = jnp.asarray(np.stack([rows, cols], axis=1).astype(np.int32))
+        jax.clear_caches()  # the sample may have had this shape
+        full = core.compile_aot(brute, shapes, poses, every)
+        brute_force = Variant("brute force, all pairs", f"{total:,} pairs x SAT",
+                              lambda: full.call(shapes, poses, every), full.seconds, 1)
+        hits = timed([brute_force, query], args.repeats, budget_s=BUDGET_S)[0]["hit"]
+        found = set(map(tuple, np.asarray(every)[np.asarray(hits)].tolist()))
+    else:
+        brute_force = Variant("brute force, all pairs", f"{total:,} pairs x SAT, extrapolated "
+                              f"from {len(sample):,}", None, sampled.seconds, 1, seconds=estimate)
+        timed([query], args.repeats, budget_s=BUDGET_S)
+    check = {"capacity": int(result.pairs.shape[0]), "broad_phase_pairs": int(result.count),
+             "colliding_pairs": len(kept), "touching_fraction": len(np.unique(kept)) / count}
+    check["notes"] = [f"{check['broad_phase_pairs']:,} broad-phase pairs, {len(kept):,} "
+                      f"colliding, {100 * check['touching_fraction']:.2f}% touching"]
+    if found is not None:  # else "not compared" (describe)
+        check["booleans_differ"] = len(found.symmetric_difference(map(tuple, kept.tolist())))
+        check["same"] = check["booleans_differ"] == 0
+    return rows_of("scene", f"{count:,} {kind}", [brute_force, query], [[], [0]],
+                   [None, check], unit="s/query")
 
+def plan(args) -> list[tuple[str, Callable[[], dict]]]:
+    """(label, run) of every comparison, in order."""
+    n, p = args.pairs, functools.partial
+    jobs = [(f"scene {kind} {count}", p(scene, kind, count, args=args))
+            for kind in args.cases for count in args.sizes]
+    jobs += [(f"levels {kind}", p(levels, kind, args.hull_pairs if "hulls" in kind else n, 1, args))
+             for kind in ("2d-octagons", "3d-boxes", "3d-hulls")]
+    jobs += [(f"unique axes {kind}", p(unique_axes, kind, n, 2, args))
+             for kind in ("2d-rectangles", "2d-symmetric8", "3d-boxes")]
+    jobs += [("Gauss map 3d-hulls", p(gauss_map, args.gauss_pairs, 3, args))]
+    jobs += [(f"AABB check {kind} {where}", p(aabb_single_calls, kind, args.single_calls, 4, args,
+                                             spread))
+             for kind in ("3d-boxes", "3d-hulls")
+             for where, spread in (("far", (3.0, 6.0)), ("near", (0.0, 1.8)))]
+    return jobs + [("2D vs 3D", p(two_d_vs_3d, n, 6, args))]
 
-def markdown(rows) -> str:
-    lines = ["| shapes | N | broad-phase pairs | colliding pairs | touching | scene query | "
-             "compile | brute force | speed-up |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        brute = f"{r['brute_force_seconds']:.3g} s"
-        if not r["brute_force_full"]:
-            brute += f" (extrapolated from {r['brute_force_pairs_timed']:.0e} pairs)"
-        if r.get("equal_to_brute_force") is not None:
-            brute += ", same pairs" if r["equal_to_brute_force"] else ", DIFFERENT pairs"
-        lines.append(f"| {r['kind']} | {r['shapes']:,} | {r['broad_phase_pairs']:,} | "
-                     f"{r['colliding_pairs']:,} | {100 * r['touching_fraction']:.2f}% | "
-                     f"{1e3 * r['scene_seconds']:.3g} ms | {r['scene_compile_seconds']:.2g} s | "
-                     f"{brute} | {r['speedup']:,.0f}x |")
-    return "\n".join(lines)
+def markdown(comparisons: list[dict]) -> str:
+    def speed(c, row):
+        return {"pairs/s": f"{row['items_per_s']:.3g} pairs/s",
+                "us/call": f"{1e6 * row['median_s']:.3g} us/call"}.get(
+                    c["unit"], f"{row['median_s']:.3g} s/query")
+    return core.markdown_table(
+        ["skip", "shapes", "variant", "work per pair", "compile", "speed (median)", "speed-up",
+         "same results"],
+        [[c["skip"], c["case"], row["variant"], row["work"], f"{row['compile_s']:.2g} s",
+          speed(c, row), ", ".join(f"{v:.2g}x vs {k}" for k, v in row["speedup"].items())
+          or "-", describe(row["check"])] for c in comparisons for row in c["rows"]])
 
-
-def parse_args(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[1_000, 10_000, 100_000])
-    parser.add_argument("--kinds", nargs="+", default=["boxes", "hulls"],
-                        choices=["boxes", "hulls"])
-    parser.add_argument("--repeats", type=int, default=5)
+def main(argv=None) -> int:
+    parser = core.parser(__doc__, ["3d-boxes", "3d-hulls"], sizes="shapes per scene")
+    parser.add_argument("--level", choices=list(core.QUERIES), default="penetration",
+                        help="scene query level and brute-force query")
     parser.add_argument("--sample", type=int, default=2**20,
                         help="pairs timed to extrapolate a brute force that is too long")
     parser.add_argument("--brute-force-budget", type=float, default=120.0,
                         help="run the brute force in full when estimated under this (s)")
-    parser.add_argument("--no-save", action="store_true")
-    return parser.parse_args(argv)
-
-
-def main(argv=None) -> None:
-    args = parse_args(argv)
-    info, rows = machine_info(), []
-    print(f"{info['cpu_model']}, {info['cpu_count']} cores, {info['devices'][0]}, "
-          f"jax {info['versions']['jax']}, git {info['git_commit']}")
-    for kind in args.kinds:
-        side = calibrate_side(shape_pool(kind, np.random.default_rng(0)), rng_seed=1)
-        for count in args.sizes:
-            rows.append(run_case(kind, count, side, args))
-            print(markdown(rows[-1:]).splitlines()[-1], flush=True)
-    info["load_average_end"] = load_average()
-    table = markdown(rows)
-    print(table)
-    if not args.no_save:
-        RESULTS_DIR.mkdir(exist_ok=True)
-        (RESULTS_DIR / "scene-cpu-2core.json").write_text(
-            json.dumps({"machine": info, "rows": rows}, indent=2) + "\n")
-        (RESULTS_DIR / "scene-cpu-2core.md").write_text(table + "\n")
-
+    for name, help_ in (("--pairs", "pairs per batched comparison"),
+                        ("--hull-pairs", "pairs of the hull levels"),
+                        ("--gauss-pairs", "hull pairs of the Gauss-map comparison"),
+                        ("--single-calls", "unbatched calls per AABB-check variant")):
+        parser.add_argument(name, type=int, help=help_)
+    parser.add_argument("--only", nargs="+", metavar="TEXT",
+                        help="only the comparisons whose label contains one of these")
+    args = core.parse(parser, argv, {
+        "cases": (["3d-boxes", "3d-hulls"],) * 2, "sizes": ([1_000, 10_000, 100_000], [1000]),
+        "repeats": (5, 2), "pairs": (100_000, 2000), "hull_pairs": (100_000, 1000),
+        "gauss_pairs": (20_000, 500), "single_calls": (500, 50)})
+    info, comparisons = core.machine_info(), []
+    for label, run in plan(args):
+        if args.only and not any(text in label for text in args.only):
+            continue
+        began = time.perf_counter()
+        jax.clear_caches()  # each compile column counts a full compile
+        comparisons.append(run())
+        print(f"\n{label} ({time.perf_counter() - began:.0f} s):\n"
+              + markdown(comparisons[-1:]).split("\n", 2)[2], file=sys.stderr, flush=True)
+    core.save(args, "scene", "jaxsat scenes and skipped work", info,
+              {"comparisons": comparisons, "tolerances": [DEPTH_TOLERANCE, NORMAL_TOLERANCE]},
+              markdown(comparisons))
+    return int(not all(not isinstance(row["check"], dict) or row["check"].get("same", True)
+                       for c in comparisons for row in c["rows"]))
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

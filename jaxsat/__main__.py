@@ -69,6 +69,7 @@ def run_bench(full: bool, extra: Sequence[str], script: pathlib.Path = PEERS_SCR
         return 2
     spec = importlib.util.spec_from_file_location("jaxsat_bench_peers", script)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up there
     spec.loader.exec_module(module)
     argv = list(extra) if full or "--quick" in extra else ["--quick", *extra]
     return module.main(argv)

@@ -321,7 +321,7 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
       prune: in 3D, skip the edge pairs whose arcs do not cross on the Gauss map (they do not
         bound the Minkowski difference, so they never give the answer). False tests every
         pair of edge directions, as a textbook SAT does: the same result for overlapping
-        shapes, only slower (see benchmarks/skipping.py); for separated shapes the extra axes
+        shapes, only slower (see benchmarks/scene.py); for separated shapes the extra axes
         may find a larger gap, still within the bounds stated below. Static.
 
     Returns:

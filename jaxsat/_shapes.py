@@ -231,7 +231,7 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None,
       dtype: float dtype of the result; default: the input's float dtype, else JAX's default.
       unique_axes: keep face normals and edge directions unique up to sign (a box: 3 and 3).
         False keeps one per face and one per edge (a box: 6 and 12), as a textbook SAT does:
-        the same answers, more work (see benchmarks/skipping.py).
+        the same answers, more work (see benchmarks/scene.py).
 
     Raises:
       TypeError: non-numeric points, or a unique_axes that is not a bool.

@@ -24,8 +24,8 @@ of A - B, convex, and the origin outside A - B makes the maximum over the sphere
 over the ball: a strictly concave problem), so the smooth value is infinitely differentiable
 there. When the shapes overlap, soft_gap can have several local maxima on the sphere (one near
 each penetration direction); the search follows the one at the exact penetration axis, and
-where two penetration directions tie the gradient switches between them (a kink, measured in
-benchmarks/README.md).
+where two penetration directions tie the gradient switches between them (a kink, stated in
+the README's contract).
 
 Search. Newton's method on the sphere (in the tangent plane at u: the Riemannian gradient and
 Hessian of soft_gap), with a trust region: a step is taken only if it raises soft_gap, and the

@@ -1,4 +1,5 @@
-"""`python -m jaxsat bench` and benchmarks/peers.py on tiny cases, without any peer package.
+"""`python -m jaxsat bench`, benchmarks/peers.py, kernels.py and distance.py on tiny cases,
+without any peer package.
 
 Peers (MJX, MuJoCo, Coal, jax2d, pymunk, collision) come with the `bench` extra, which CI does
 not install: these tests force a peer to look missing and check that it is reported as skipped,
@@ -20,7 +21,7 @@ pytestmark = pytest.mark.slow  # the fast subset is -m "not slow"
 pytest.importorskip("scipy")  # the oracle of benchmarks/peers.py
 BENCHMARKS = pathlib.Path(__file__).resolve().parent.parent / "benchmarks"
 TINY = ["--cases", "2d-small", "--sizes", "64", "--error-pairs", "64", "--grad-pairs", "4",
-        "--loop-pairs", "64", "--repeats", "1", "--pool", "16", "--no-plot", "--no-progress"]
+        "--loop-pairs", "64", "--repeats", "1", "--pool", "16"]
 
 
 @pytest.fixture
@@ -78,7 +79,7 @@ def test_bench_runs_quick_peers_and_skips_missing_ones(peers, tmp_path, capsys):
     result = json.loads(prefix.with_name("peers.json").read_text())
     assert result["config"]["quick"] is True
     assert len(result["machine"]["load_average_start"]) == 3
-    rows = {row["method"]: row for row in result["results"]}
+    rows = {row["method"]: row for row in result["rows"]}
     assert "skipped" in rows["pymunk"]
     exact, single = rows["numpy-sat-f64"]["errors"], rows["numpy-sat-f32"]["errors"]
     assert exact["overlapping"] > 10 and exact["wrong_overlap"] == 0
@@ -91,7 +92,7 @@ def test_bench_runs_quick_peers_and_skips_missing_ones(peers, tmp_path, capsys):
 def test_jaxsat_rows_match_the_oracle_with_gradients(peers, tmp_path):
     prefix = tmp_path / "jaxsat"
     assert peers.main([*TINY, "--methods", "jaxsat", "--output", str(prefix)]) == 0
-    row = json.loads(prefix.with_name("jaxsat.json").read_text())["results"][0]
+    row = json.loads(prefix.with_name("jaxsat.json").read_text())["rows"][0]
     errors = row["errors"]
     assert row["precision"] == "float32" and row["gradients"] == "jax.grad"
     assert errors["wrong_overlap"] == 0 and errors["depth_error_max"] < 1e-5
@@ -108,7 +109,7 @@ def test_chunked_jaxsat_row_matches_the_oracle(peers, tmp_path):
     argv[argv.index("--sizes") + 1] = "300"
     argv[argv.index("--error-pairs") + 1] = "300"
     assert peers.main(argv) == 0
-    row = json.loads(prefix.with_name("chunked.json").read_text())["results"][0]
+    row = json.loads(prefix.with_name("chunked.json").read_text())["rows"][0]
     errors = row["errors"]
     assert errors["overlapping"] > 10 and errors["wrong_overlap"] == 0
     assert errors["depth_error_max"] < 1e-5 and errors["normal_error_max_deg"] < 1e-3
@@ -116,20 +117,22 @@ def test_chunked_jaxsat_row_matches_the_oracle(peers, tmp_path):
 
 
 @pytest.fixture
-def roofline(monkeypatch):
+def kernels(monkeypatch):
     monkeypatch.syspath_prepend(str(BENCHMARKS))
-    import roofline as module
+    import kernels as module
 
     return module
 
 
-def test_roofline_reports_costs_ceilings_and_rates(roofline, capsys):
+def test_kernels_report_costs_ceilings_and_rates(kernels, capsys):
     argv = ["--quick", "--cases", "2d-small", "3d-boxes", "--sizes", "64", "128",
-            "--repeats", "1", "--pool", "16"]
-    assert roofline.main(argv) == 0
-    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ")]
-    assert lines[0].startswith("| case | compile s | flops/pair | bytes/pair | C |")
-    rows = {line.split(" | ")[0][2:]: line.split(" | ") for line in lines[1:]}
+            "--repeats", "1", "--pool", "16", "--query-pairs", "0"]
+    assert kernels.main(argv) == 0
+    lines = capsys.readouterr().out.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| case | compile s |"))
+    assert lines[start].startswith("| case | compile s | flops/pair | bytes/pair | C |")
+    table = lines[start + 2:lines.index("", start)]  # the roofline table, one row per case
+    rows = {line.split(" | ")[0][2:]: line.split(" | ") for line in table}
     assert set(rows) == {"2d-small", "3d-boxes"}
     for cells in rows.values():
         compile_s, flops, bytes_ = (float(cell) for cell in cells[1:4])
@@ -138,7 +141,6 @@ def test_roofline_reports_costs_ceilings_and_rates(roofline, capsys):
         assert float(cells[7]) >= 1.0  # flatness: fastest over slowest
     # A 3D box pair costs more operations than a pair of 3-4-gons.
     assert float(rows["3d-boxes"][2]) > float(rows["2d-small"][2])
-
 
 
 def test_distance_benchmark_reports_ratios_and_unit_gradients(monkeypatch, tmp_path):

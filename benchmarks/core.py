@@ -1,0 +1,370 @@
+"""What the benchmarks share: named data sets, the float64 oracle, one timing loop, compile
+statistics, the machine record, command-line options and the record writer.
+
+Scripts import it with `sys.path.insert(0, <this folder>)`, then `import core`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import importlib.metadata
+import itertools
+import json
+import math
+import os
+import pathlib
+import platform
+import statistics
+import subprocess
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxsat
+
+HERE = pathlib.Path(__file__).resolve().parent
+STARTED = time.perf_counter()
+sys.path.insert(0, str(HERE.parent / "tests"))
+import oracle  # noqa: E402  (tests/oracle.py: NumPy/SciPy only, shares no code with jaxsat)
+
+
+def ellipse(rng, count: int, symmetric: bool = False) -> np.ndarray:
+    """`count` vertices on a random ellipse, counter-clockwise (strictly convex); symmetric:
+    centrally symmetric, count/2 pairs of parallel edges."""
+    half, span = (count // 2, np.pi) if symmetric else (int(count), 2 * np.pi)
+    gaps = rng.uniform(0.5, 1.5, half)
+    angles = rng.uniform(0, 2 * np.pi) + span * (np.cumsum(gaps) - gaps[0]) / gaps.sum()
+    axes = rng.uniform(0.3, 0.8, 2)
+    ring = np.stack([axes[0] * np.cos(angles), axes[1] * np.sin(angles)], axis=1)
+    return np.concatenate([ring, -ring]) if symmetric else ring
+
+def corners(half) -> np.ndarray:
+    return np.array(list(itertools.product((-1.0, 1.0), repeat=len(half)))) * half
+
+def hull_points(rng, count: int = 20) -> np.ndarray:
+    """`count` points on a random ellipsoid (semi-axes 0.3-0.8): every one a hull vertex."""
+    directions = rng.normal(size=(count, 3))
+    return directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(
+        0.3, 0.8, 3)
+
+SETS = {
+    "2d-small": ("convex 3-4-gons (jax2d's limit), padded to 4",
+                 lambda rng: ellipse(rng, rng.integers(3, 5))),
+    "2d-polygons": ("convex 4-8-gons, padded to 8", lambda rng: ellipse(rng, rng.integers(4, 9))),
+    "2d-octagons": ("convex 8-gons", lambda rng: ellipse(rng, 8)),
+    "2d-symmetric8": ("centrally symmetric 8-gons", lambda rng: ellipse(rng, 8, True)),
+    "2d-rectangles": ("rectangles, half extents 0.15-0.6",
+                      lambda rng: corners(rng.uniform(0.15, 0.6, 2))),
+    "3d-boxes": ("boxes, half extents 0.15-0.6", lambda rng: corners(rng.uniform(0.15, 0.6, 3))),
+    "3d-hulls": ("hulls of 20 points on ellipsoids, padded to 20", hull_points)}
+"""Data set name: (description, random local vertices of one pool shape)."""
+CHUNKS = {"2d-small": 8192, "2d-polygons": 8192, "3d-boxes": 8192, "3d-hulls": 256}
+"""`query_batch` chunks whose intermediates stay in cache (measured on the 2-core CPU: boxes
+need 3.2 kB per pair, hulls 65 kB)."""
+QUERIES = {"penetration": jaxsat.penetration, "intersects": jaxsat.intersects}
+"""The levels a kernel or scene can be timed at (--query, --level)."""
+MAX_VERTICES = {"2d-small": 4, "2d-symmetric8": None, "3d-hulls": 20}
+"""Padding of polygons and hulls (8 where not listed; None: as many as unique)."""
+
+def f32(values) -> np.ndarray:
+    """Round to float32, keep as float64: float32 methods and the oracle see the same input."""
+    return np.asarray(values, np.float64).astype(np.float32).astype(np.float64)
+
+def rotations(params: np.ndarray, dim: int) -> np.ndarray:
+    """(..., D, D) float64 rotations from pose parameters (x, y, angle) or (t, w x y z)."""
+    if dim == 2:
+        c, s = np.cos(params[..., 2]), np.sin(params[..., 2])
+        return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+    q = params[..., 3:] / np.linalg.norm(params[..., 3:], axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+def pose(params) -> jaxsat.Pose:
+    """The pose of parameters (x, y, angle) or (translation, quaternion w x y z) (JAX)."""
+    if params.shape[-1] == 3:
+        return jaxsat.pose2(params[0], params[1], params[2])
+    return jaxsat.pose3(params[:3], params[3:])
+
+@dataclasses.dataclass
+class DataSet:
+    """`points`: local vertices of every pool shape; `pick` (2, N): pool index of a and b;
+    `params` (2, N, P): pose parameters, x y angle (2D) or translation and quaternion w x y z
+    (3D). Every number is a float32 value held in float64."""
+    name: str
+    points: list
+    pick: np.ndarray
+    params: np.ndarray
+    def __post_init__(self):
+        self.dim, self.pools = self.points[0].shape[1], {}
+        self.translation = self.params[..., :self.dim]
+        self.rotation = rotations(self.params, self.dim)
+        self.angle = self.params[..., 2] if self.dim == 2 else None
+        boxes = self.name == "3d-boxes"
+        self.half_extents = np.array([p.max(0) for p in self.points]) if boxes else None
+    def pool(self, dtype=np.float32, unique_axes=True):
+        """The pool shapes, stacked (built once per dtype and unique_axes)."""
+        key, box = (np.dtype(dtype).name, unique_axes), self.name in ("3d-boxes", "2d-rectangles")
+        if key not in self.pools:
+            self.pools[key] = jax.tree.map(np.asarray, jaxsat.stack([
+                jaxsat.box(p.max(0), dtype=dtype, unique_axes=unique_axes) if box else
+                (jaxsat.polygon if self.dim == 2 else jaxsat.polyhedron)(
+                    p, MAX_VERTICES.get(self.name, 8), dtype=dtype, unique_axes=unique_axes)
+                for p in self.points]))
+        return self.pools[key]
+    def shapes(self, index=slice(None), dtype=np.float32, unique_axes=True):
+        """(a, b): the shapes of pairs `index`, batched on the device."""
+        pool = self.pool(dtype, unique_axes)
+        return tuple(jax.tree.map(lambda x, p=p: jnp.asarray(x)[p[index]], pool) for p in self.pick)
+    def inputs(self, index=slice(None), dtype=np.float32, unique_axes=True):
+        """(a, pose_a, b, pose_b) of pairs `index` on the device."""
+        a, b = self.shapes(index, dtype, unique_axes)
+        pose = [jaxsat.Pose(jnp.asarray(self.translation[s][index], dtype),
+                            jnp.asarray(self.rotation[s][index], dtype)) for s in (0, 1)]
+        return a, pose[0], b, pose[1]
+    def world(self, i: int, params=None):
+        """float64 world vertices of pair i (at pose parameters `params`, (2P,), if given)."""
+        params = self.params[:, i] if params is None else np.reshape(params, (2, -1))
+        rotation = rotations(params, self.dim)
+        return tuple(oracle.to_world(self.points[self.pick[s, i]], rotation[s],
+                                     params[s, :self.dim]) for s in (0, 1))
+    def signed(self, i: int, params=None) -> float:
+        """Oracle signed distance of pair i: the distance apart, minus the depth overlapping."""
+        result = oracle.evaluate(*self.world(i, params))
+        return result.distance if result.depth < 0 else -result.depth
+
+def make_data(name: str, pairs: int, pool: int = 256, seed: int = 0, spread=(0.0, 1.8)):
+    """Data set `name`: `pool` random shapes and `pairs` random pairs of them, b's origin
+    `spread` from a's (about half collide by default). Same arguments, same data."""
+    rng = np.random.default_rng([seed, list(SETS).index(name)])
+    points = [f32(SETS[name][1](rng)) for _ in range(pool)]
+    dim = points[0].shape[1]
+    pick = rng.integers(0, pool, (2, pairs))
+    centres, directions = rng.uniform(-1.0, 1.0, (pairs, dim)), rng.normal(size=(pairs, dim))
+    ends = centres + directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(
+        *spread, (pairs, 1))
+    turns = rng.uniform(-np.pi, np.pi, (2, pairs, 1)) if dim == 2 else rng.normal(
+        size=(2, pairs, 4))
+    params = np.concatenate([np.stack([centres, ends]), turns], axis=-1)
+    return DataSet(name, points, pick, f32(params))
+
+OVERLAP_TOLERANCE = 1e-6
+"""Pairs with |oracle depth| below this are touching: out of the overlap statistics."""
+FD_STEPS = (1e-4, 1e-5)
+"""Central-difference steps in the pose parameters; the smaller one is the reference."""
+
+@dataclasses.dataclass
+class Reference:
+    """tests/oracle.py on the first pairs of a data set: depth (when < 0: minus the largest
+    Minkowski facet gap), normal, normal_is_unique, distance (float64)."""
+    depth: np.ndarray
+    normal: np.ndarray
+    normal_is_unique: np.ndarray
+    distance: np.ndarray
+    overlapping = property(lambda self: self.depth > OVERLAP_TOLERANCE)
+    separated = property(lambda self: self.depth < -OVERLAP_TOLERANCE)
+    signed = property(lambda self: np.where(self.depth < 0, self.distance, -self.depth))
+
+def reference(data: DataSet, count: int) -> Reference:
+    found = [oracle.evaluate(*data.world(i), tie_tolerance=1e-9) for i in range(count)]
+    return Reference(*(np.array([getattr(r, key) for r in found]) for key in
+                       ("depth", "normal", "normal_is_unique", "distance")))
+
+def oracle_gradient(data: DataSet, i: int, columns, agreement: float):
+    """Central differences of the oracle signed distance of pair i in the pose parameters
+    `columns` (a's then b's): (the gradient at the smaller step, whether both steps agree
+    within `agreement`; not: a kink within a step)."""
+    base, estimates = data.params[:, i].reshape(-1), []
+    for step in FD_STEPS:
+        estimates.append(np.array([(data.signed(i, base + s) - data.signed(i, base - s)) / (
+            2 * step) for s in np.eye(len(base))[list(columns)] * step]))
+    return estimates[-1], bool(np.linalg.norm(estimates[0] - estimates[-1]) <= agreement)
+
+@dataclasses.dataclass
+class Timing:
+    times: list
+    output: object = None  # of the warm-up call
+    best = property(lambda self: min(self.times))
+    median = property(lambda self: statistics.median(self.times))
+
+def time_calls(calls: dict, repeats: int, budget_s: float = math.inf, min_rounds: int = 1,
+               burst: int = 1, burst_s: float = math.inf, block: bool = True) -> dict:
+    """Time zero-argument `calls` (name -> function) interleaved, so that load on a shared
+    machine hits them alike: a warm-up call each, then up to `repeats` rounds giving each a
+    turn of up to `burst` calls (ended once the turn took `burst_s`); no new round once all
+    timed calls took `budget_s` (after `min_rounds`). Returns name -> Timing."""
+    finish = jax.block_until_ready if block else (lambda out: out)
+    timings = {name: Timing([], finish(call())) for name, call in calls.items()}
+    for round_ in range(repeats):
+        if round_ >= min_rounds and sum(sum(t.times) for t in timings.values()) > budget_s:
+            break
+        for name, call in calls.items():
+            for k in range(burst):
+                start = time.perf_counter()
+                finish(call())
+                timings[name].times.append(time.perf_counter() - start)
+                if sum(timings[name].times[-k - 1:]) > burst_s:
+                    break
+    return timings
+
+@dataclasses.dataclass
+class Compiled:
+    """An executable compiled ahead of time: compile seconds, memory (arguments + outputs +
+    temporaries) and XLA's cost analysis (None where the backend has none)."""
+    call: object
+    seconds: float
+    memory_bytes: int | None = None
+    temp_bytes: int | None = None
+    flops: float | None = None
+    bytes_accessed: float | None = None
+
+def compile_aot(function, *arguments) -> Compiled:
+    """`jax.jit(function)` compiled for these (real or abstract) arguments."""
+    start = time.perf_counter()
+    executable = jax.jit(function).lower(*arguments).compile()
+    compiled = Compiled(executable, time.perf_counter() - start)
+    try:
+        stats, cost = executable.memory_analysis(), executable.cost_analysis()
+        cost = cost[0] if isinstance(cost, list) else cost
+        compiled.temp_bytes, compiled.memory_bytes = stats.temp_size_in_bytes, (
+            stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes)
+        compiled.flops, compiled.bytes_accessed = cost.get("flops"), cost.get("bytes accessed")
+    except Exception:  # noqa: BLE001 - optional per backend
+        pass
+    return compiled
+
+def abstract(tree, n: int):
+    """ShapeDtypeStruct stand-ins for `tree` with a leading axis of length n."""
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct((n, *np.shape(x)[1:]), x.dtype), tree)
+
+def read_proc(path: str, prefix: str) -> str | None:
+    try:
+        with open(path) as lines:
+            return next((x.split(":", 1)[1].strip() for x in lines if x.startswith(prefix)), None)
+    except OSError:
+        return None
+
+def load_average() -> list | None:
+    return [round(x, 2) for x in os.getloadavg()] if hasattr(os, "getloadavg") else None
+
+def available_memory_bytes() -> int | None:
+    found = read_proc("/proc/meminfo", "MemAvailable")
+    return int(found.split()[0]) * 1024 if found else None
+
+def _run(*command) -> str | None:
+    try:
+        return subprocess.run(command, capture_output=True, text=True, timeout=10,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+def machine_info(distributions=("jax", "jaxlib", "jaxsat", "numpy", "scipy")) -> dict:
+    """Date, platform, CPU, load, memory, versions, git commit ("+dirty": uncommitted changes)
+    and JAX devices."""
+    def version(name):
+        try:
+            return importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            return None
+    commit = _run("git", "-C", str(HERE), "rev-parse", "--short", "HEAD")
+    dirty = commit and _run("git", "-C", str(HERE), "status", "--porcelain")
+    return {"date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat("T", "seconds"),
+            "platform": platform.platform(), "python": platform.python_version(),
+            "cpu_model": read_proc("/proc/cpuinfo", "model name") or platform.processor(),
+            "cpu_count": os.cpu_count(), "load_average_start": load_average(),
+            "memory_available_bytes": available_memory_bytes(),
+            "versions": {name: version(name) for name in distributions},
+            "git_commit": commit and commit + "+dirty" * bool(dirty),
+            "backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()]}
+
+LIMITS = {"--budget-seconds": "stop repeating once the timed calls add up to this",
+          "--max-call-seconds": "skip a call estimated to take longer",
+          "--memory-fraction": "skip a call needing more of the available memory"}
+
+def parser(doc: str, cases=None, sizes="pairs per timed call", timing: bool = True,
+           limits=()) -> argparse.ArgumentParser:
+    """The options the scripts share (--repeats and --pool with `timing`, `limits` of LIMITS);
+    `parse` fills in their defaults."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0], epilog="Usage:" + (
+        doc.split("Usage")[-1].split(":", 1)[-1]), formatter_class=argparse.RawTextHelpFormatter)
+    parser.add_argument("--quick", action="store_true",
+                        help="a smoke run on small sizes; writes files only with --output")
+    if cases:
+        parser.add_argument("--cases", nargs="+", choices=cases, help=f"of {' '.join(cases)}")
+    if sizes:
+        parser.add_argument("--sizes", type=int, nargs="+", help=sizes)
+    if timing:
+        parser.add_argument("--repeats", type=int, help="timed calls or rounds after a warm-up")
+        parser.add_argument("--pool", type=int, help="random shapes per data set (default 256)")
+    for option in limits:
+        parser.add_argument(option, type=float, help=LIMITS[option])
+    parser.add_argument("--seed", type=int, default=0, help="random seed")
+    parser.add_argument("--output", type=pathlib.Path, metavar="PREFIX", help="write PREFIX.json"
+                        " and .md (default: benchmarks/results/<script>-cpu-2core, not --quick)")
+    parser.add_argument("--no-save", action="store_true", help="print only")
+    return parser
+
+def parse(parser, argv, defaults: dict) -> argparse.Namespace:
+    """Parse, then fill each option left unset from `defaults`: name -> (full, quick)."""
+    args = parser.parse_args(argv)
+    for name, (full, quick) in {"pool": (256, 256), **defaults}.items():
+        if hasattr(args, name) and getattr(args, name) is None:
+            setattr(args, name, quick if args.quick else full)
+    counts = [*(getattr(args, "sizes", None) or []), getattr(args, "repeats", 1),
+              getattr(args, "pool", 1)]
+    if min(counts) < 1:
+        parser.error("sizes, --repeats and --pool must be positive")
+    return args
+
+def save(args, name: str, title: str, info: dict, payload: dict, table: str):
+    """Print the table; unless --no-save (or --quick without --output) write PREFIX.json
+    (machine, config, `payload`) and PREFIX.md."""
+    info["load_average_end"], info["run_seconds"] = load_average(), time.perf_counter() - STARTED
+    versions = ", ".join(f"{k} {v}" for k, v in info["versions"].items() if v)
+    text = (f"{title}, {info['date_utc']}, git {info['git_commit']}\n\nMachine: "
+            f"{info['cpu_model']}, {info['cpu_count']} CPUs, {info['platform']}, "
+            f"{info['backend']}; load average {info['load_average_start']} at start, "
+            f"{info['load_average_end']} at end; {info['run_seconds']:.0f} s. Versions: "
+            f"{versions}.\n\n{table}")
+    print("\n" + text)
+    prefix = args.output or (None if args.quick else HERE / "results" / f"{name}-cpu-2core")
+    if prefix is None or args.no_save:
+        return
+    prefix.parent.mkdir(parents=True, exist_ok=True)
+    record = {"machine": info, "config": vars(args), **payload}
+    prefix.with_name(prefix.name + ".json").write_text(json.dumps(
+        record, indent=1, default=lambda x: getattr(x, "item", x.__str__)()))
+    prefix.with_name(prefix.name + ".md").write_text(text)
+    print(f"wrote {prefix}.json, .md", file=sys.stderr)
+
+def too_big(args, memory_bytes=None, seconds: float = 0.0) -> str | None:
+    """Why a call is skipped: it needs more than --memory-fraction of the available memory or
+    is estimated to take over --max-call-seconds (None: neither)."""
+    free = available_memory_bytes()
+    if memory_bytes and free and memory_bytes > args.memory_fraction * free:
+        return f"needs {memory_bytes / 2**30:.1f} GiB"
+    if seconds > args.max_call_seconds:
+        return f"~{seconds:.0f} s per call > --max-call-seconds {args.max_call_seconds:g}"
+    return None
+
+def stats(name: str, errors, unit: str = "") -> dict:
+    """name_max and name_median of `errors` (nothing for none)."""
+    return {f"{name}_max{unit}": float(np.max(errors)),
+            f"{name}_median{unit}": float(np.median(errors))} if len(errors) else {}
+
+def markdown_table(head: list, rows: list) -> str:
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    return "\n".join(lines + ["| " + " | ".join(map(str, row)) + " |" for row in rows]) + "\n"
+
+def num(value, digits: int = 2) -> str:
+    """A table cell: "-" for None, integers as they are, else `digits` significant digits."""
+    if value is None or isinstance(value, (int, np.integer)) or value == 0:
+        return "-" if value is None else str(value)
+    return f"{value:.{digits}g}" if 1e-3 <= abs(value) < 1e5 else f"{value:.{digits - 1}e}"
