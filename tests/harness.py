@@ -809,7 +809,7 @@ QUERIES = {
 }
 """Every public pair query, by name (the distance in both of its modes)."""
 
-FAST_COMBINATIONS = {("poly8", np.float64), ("box", np.float32)}
+FAST_COMBINATIONS = {("box", np.float32)}
 """The (size class, dtype) combinations of the fast subset; the others are marked slow."""
 
 

@@ -162,6 +162,7 @@ def test_scales_from_milli_to_kilo(name, dtype, scale):
     assert 0 < np.mean([r.depth > 0 for r in refs]) < 1
 
 
+@pytest.mark.slow
 def test_nested_shapes():
     """A small hull inside a big one (both orders): minus the deepest escape distance."""
     rng = np.random.default_rng(34)
@@ -176,6 +177,7 @@ def test_nested_shapes():
     check_against_oracle(pairs.swapped())
 
 
+@pytest.mark.slow
 def test_touching_and_barely_apart():
     """|value| <= 1e-3 size: move b along the oracle direction until the value is a target.
 
@@ -236,6 +238,7 @@ def test_hand_built_closest_features(dim, label):
     np.testing.assert_allclose(swapped, distance, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_hand_built_overlaps_have_touching_witnesses():
     """Shallow overlaps (s < 0) through a vertex-face or an edge-edge contact: the value is
     s, and the witnesses are where the shapes touch after moving b out by |s| along the

@@ -289,6 +289,7 @@ def test_shallow_contacts(classes, dtype):
     assert np.all(np.abs(depth) <= (1e-3 + RELATIVE_TOLERANCE[dtype]) * sizes)
 
 
+@pytest.mark.slow
 def test_nested_shapes(dtype):
     """One shape entirely inside the other (both orders): depth is the deepest escape."""
     rng = np.random.default_rng(14)

@@ -380,6 +380,7 @@ def as_float32(pairs: Pairs) -> Pairs:
                                dtype=np.float32)
 
 
+@pytest.mark.slow
 def test_convergence_as_tau_shrinks():
     """The largest error over many pairs falls linearly with tau: from tau = 1e-2 size to
     1e-4 size it shrinks by more than 20 (0.05), and each decade by a factor of at least 3;
@@ -398,6 +399,7 @@ def test_convergence_as_tau_shrinks():
         assert np.all(worst[1:] <= worst[:-1] / 3 + 1e-12), worst
 
 
+@pytest.mark.slow
 def test_scale_covariance():
     """Scaling shapes, positions and tau by k scales the smooth value by k."""
     values = []
@@ -609,7 +611,7 @@ def _path_pairs(shape_a, points_a, shape_b, points_b, params_a, params_b) -> Pai
                  np.zeros(count, int), params_a, params_b, np.float64)
 
 
-@pytest.mark.parametrize("name", ["poly8", "box", "hull8"])
+@pytest.mark.parametrize("name", ["poly8", "box", pytest.param("hull8", marks=pytest.mark.slow)])
 def test_value_is_one_lipschitz_along_translation_paths(name):
     """b slides along a straight line from clear separation through contact into deep
     overlap (its vertex centroid through a's) and out, in steps of 0.02: the smooth value
