@@ -200,8 +200,14 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
         # and whether by more than the tolerance (else stop after it: rounding, which could
         # cycle; taking that last step still fixes the direction, as when a vertex gives way
         # to an edge whose closest point lies 1e-8 from that vertex).
-        closer = best_squared < squared
-        progress = squared - best_squared > 2 * tolerance * jnp.sqrt(squared)
+        # Not `known`: w is a better support point than v's gap admits, so a face holding it
+        # also gives a better direction, even when it shortens v by less than the rounding
+        # of |v|^2 (a vertex giving way to an edge whose closest point lies near that
+        # vertex shortens v by a second-order amount only). Such a face is taken within the
+        # tolerance, and the loop stops after it.
+        slack = 2 * tolerance * jnp.sqrt(squared)
+        closer = best_squared < squared + slack
+        progress = squared - best_squared > slack
         coded = k.materialize(jnp.where(closer, best_face, -1) * 2 + progress.astype(jnp.int32))
         best_face, progress = coded // 2, coded % 2 == 1
         keep = known | (best_face < 0)
