@@ -116,6 +116,7 @@ def run_row(case, source, count, rng, oracle_samples):
     out = {dtype: evaluate(case, pool_of(case, points, dtype), ia, ib, pa, pb, tau, dtype)
            for dtype in dtypes}
     reference = out["float64"]["exact"].astype(np.float64)
+    size = unit + np.abs(reference)  # as the tests define it: tiny shapes may be far apart
     sample = rng.choice(count, min(oracle_samples, count), replace=False)
     truth = np.array([harness.oracle_reference(harness.Config(
         KIND[case], points[ia[i] % len(points)], pa[i], points[ib[i] % len(points)], pb[i]))[0]
@@ -123,31 +124,31 @@ def run_row(case, source, count, rng, oracle_samples):
     row = {"class": case, "source": source, "configurations": count,
            "oracle_samples": len(sample)}
     row.update(core.stats("float64_exact_vs_oracle",
-                          np.abs(reference[sample] - truth) / unit[sample]))
+                          np.abs(reference[sample] - truth) / size[sample]))
     for dtype, result in out.items():
         row[f"{dtype}_nonfinite_values"] = sum(
             int(np.sum(~np.isfinite(result[k]))) for k in ("exact", "smooth"))
         row[f"{dtype}_nonfinite_grads"] = sum(
             int(np.sum(~result[k])) for k in ("exact_grad_finite", "smooth_grad_finite"))
         for part in ("exact", "smooth") if dtype == "float32" else ("smooth",):
-            error = np.abs(result[part].astype(np.float64) - reference) / unit
+            error = np.abs(result[part].astype(np.float64) - reference) / size
             row.update(core.stats(f"{dtype}_{part}", error))
-        ratio = (np.abs(result["smooth"].astype(np.float64) - reference)
-                 / (result["bound"].astype(np.float64) * tau))
-        row[f"{dtype}_smooth_over_bound_max"] = float(np.max(ratio))
+        if dtype == "float64":  # the bound holds in exact arithmetic; f32 adds its rounding
+            row["float64_smooth_over_bound_max"] = float(np.max(np.abs(result["smooth"].astype(
+                np.float64) - reference) / (result["bound"].astype(np.float64) * tau)))
     return row
 
 HEAD = ["class", "source", "configs", "NaN/inf values (f64, f32)", "NaN/inf grads (f64, f32)",
         "f64 exact vs oracle, max / median (samples)", "f32 exact vs f64, max / median",
         "f64 smooth vs f64 exact, max / median", "f32 smooth vs f64 exact, max / median",
-        "smooth error / bound, max"]
+        "f64 smooth error / bound, max"]
 
 def cells(row) -> list:
     def pair(prefix):
         return f"{core.num(row.get(prefix + '_max'))} / {core.num(row.get(prefix + '_median'))}"
     def nonfinite(kind):
         return ", ".join(core.num(row.get(f"{d}_nonfinite_{kind}")) for d in DTYPES)
-    ratio = max(row.get(f"{d}_smooth_over_bound_max", 0.0) for d in DTYPES)
+    ratio = row["float64_smooth_over_bound_max"]
     return [row["class"], row["source"], row["configurations"], nonfinite("values"),
             nonfinite("grads"), f"{pair('float64_exact_vs_oracle')} ({row['oracle_samples']})",
             pair("float32_exact"), pair("float64_smooth"), pair("float32_smooth"),
@@ -169,8 +170,8 @@ def main(argv=None) -> int:
     bad = sum(row.get(f"{d}_nonfinite_{k}", 0) for row in rows for d in DTYPES
               for k in ("values", "grads"))
     summary_line = (f"{total} configurations, {bad} non-finite values or gradients. tau = {TAU} "
-                    "x scale; errors divided by the length scale; reference: jaxsat float64 "
-                    "exact, itself checked against the SciPy oracle on a subsample.\n\n")
+                    "x scale; errors divided by the size (scale + |distance|); reference: jaxsat "
+                    "float64 exact, itself checked against the SciPy oracle on a subsample.\n\n")
     core.save(args, "stability", "jaxsat stability", info,
               {"tau": TAU, "pool": POOL, "shares": SHARES, "sources": SOURCES, "results": rows},
               summary_line + core.markdown_table(HEAD, [cells(row) for row in rows]))
