@@ -114,8 +114,7 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     # witness axis loses the axis' error times the shapes' extent: in float32 that error is
     # about eps x size / distance in angle, so 3e-4 of the size lost on a vertex pair 3e-3
     # apart. Overlapping, the SAT gap is exact.
-    offset = k.vsub(k.as_vec(witness_b), k.as_vec(witness_a))
-    length = k.safe_sqrt(k.vdot(offset, offset))
+    length = k.dot(witness_axis, witness_b - witness_a)  # 0 where the points coincide
     converged = simplex.iterations < GJK_MAX_ITERATIONS
     by_length = use_witness & (sat.depth < 0) & converged
     distance = jnp.where(by_length, jnp.maximum(witness_gap, length),

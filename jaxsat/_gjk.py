@@ -196,15 +196,11 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
                 better = face_squared < best_squared
                 best_squared = jnp.where(better, face_squared, best_squared)
                 best_face = jnp.where(better, index, best_face)
-        # Encoded with the face: whether it is closer at all (else keep the old simplex),
-        # and whether by more than the tolerance (else stop after it: rounding, which could
-        # cycle; taking that last step still fixes the direction, as when a vertex gives way
-        # to an edge whose closest point lies 1e-8 from that vertex).
-        # Not `known`: w is a better support point than v's gap admits, so a face holding it
-        # also gives a better direction, even when it shortens v by less than the rounding
-        # of |v|^2 (a vertex giving way to an edge whose closest point lies near that
-        # vertex shortens v by a second-order amount only). Such a face is taken within the
-        # tolerance, and the loop stops after it.
+        # Encoded with the face: whether to take it (else keep the old simplex), and whether
+        # it shortens v by more than the tolerance (else stop after it: rounding, which could
+        # cycle). A face no longer than v within the tolerance is taken: w's gap says v is not
+        # optimal (not `known`), so a face holding w gives a better direction even when |v|
+        # shrinks only to second order, as when a vertex gives way to a nearby edge point.
         slack = 2 * tolerance * jnp.sqrt(squared)
         closer = best_squared < squared + slack
         progress = squared - best_squared > slack

@@ -18,8 +18,8 @@ from jaxsat._kernels import project, rotate
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
-__all__ = ["PairFrame", "cast_pair", "check_one_pair", "check_pair",
-           "compiled_query", "pair_frame", "relative_pose"]
+__all__ = ["PairFrame", "cast_pair", "check_one_pair", "check_pair", "compiled_query",
+           "pair_frame", "relative_pose"]
 
 
 def check_pair(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> None:
