@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsat._kernels import where
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
@@ -160,7 +161,7 @@ def _enumerate(low, high, candidate_capacity: int):
 
 def _compact(values, keep, capacity: int, fill):
     """The entries of `values` (C, ...) where `keep`, moved to the front of `capacity` slots."""
-    target = jnp.where(keep, jnp.cumsum(keep) - 1, capacity)
+    target = where(keep, jnp.cumsum(keep) - 1, capacity)
     empty = jnp.full((capacity, *values.shape[1:]), fill, values.dtype)
     return empty.at[target].set(values, mode="drop")
 

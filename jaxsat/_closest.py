@@ -103,12 +103,12 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     witness_a = witness(simplex.weights, a_vertices, simplex.index_a)
     witness_b = witness(simplex.weights, moved_b, simplex.index_b)
     witness_axis, found = k.safe_normalize(witness_b - witness_a, 0.0)
-    witness_axis = jnp.where(found, witness_axis, sat.axis)
+    witness_axis = k.where(found, witness_axis, sat.axis)
     sat_gap, witness_gap = -sat.depth, support_gap(witness_axis, a_vertices, b_vertices)
     # Apart, at a near-tie (a closest-feature switch) the gap is flat in the axis, so a gap
     # within rounding of the best can come from an axis sqrt(rounding) off: prefer the
     # witness axis there, whose direction is accurate to rounding (the gradient uses it).
-    use_witness = witness_gap > sat_gap - jnp.where(sat.depth < 0, rounding, 0.0)
+    use_witness = witness_gap > sat_gap - k.where(sat.depth < 0, rounding, 0.0)
     # Apart, once the search has converged, |q - p| is the distance up to the rounding of
     # the points (from above: p and q are points of the shapes), while the gap along the
     # witness axis loses the axis' error times the shapes' extent: in float32 that error is
@@ -117,10 +117,10 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     length = k.dot(witness_axis, witness_b - witness_a)  # 0 where the points coincide
     converged = simplex.iterations < GJK_MAX_ITERATIONS
     by_length = use_witness & (sat.depth < 0) & converged
-    distance = jnp.where(by_length, jnp.maximum(witness_gap, length),
-                         jnp.where(use_witness, witness_gap, sat_gap))
+    distance = k.where(by_length, jnp.maximum(witness_gap, length),
+                         k.where(use_witness, witness_gap, sat_gap))
     return ExactDistance(distance=distance,
-                         axis=jnp.where(use_witness, witness_axis, sat.axis),
+                         axis=k.where(use_witness, witness_axis, sat.axis),
                          index_a=simplex.index_a, index_b=simplex.index_b,
                          weights=simplex.weights)
 
@@ -193,16 +193,16 @@ def closest_pair_of_support_faces(a_vertices, a_count, b_vertices, b_count, axis
                     best_squared, best_t, best_code = squared, t, jnp.zeros((), jnp.int32)
                 else:
                     better = squared < best_squared
-                    best_squared = jnp.where(better, squared, best_squared)
-                    best_t = jnp.where(better, t, best_t)
-                    best_code = jnp.where(better, len(candidates), best_code)
+                    best_squared = k.where(better, squared, best_squared)
+                    best_t = k.where(better, t, best_t)
+                    best_code = k.where(better, len(candidates), best_code)
                 candidates.append((side, edge, point))
     best_code, best_t = k.materialize((best_code, best_t))
 
     def chosen(values):
         picked = values[0]
         for code in range(1, len(values)):
-            picked = jnp.where(best_code == code, values[code], picked)
+            picked = k.where(best_code == code, values[code], picked)
         return picked
 
     slots_a, slots_b = [], []

@@ -23,6 +23,7 @@ import numpy as np
 
 from jaxsat import _shapes as shapes
 from jaxsat._decompose import decompose
+from jaxsat._kernels import where
 from jaxsat._pair import check_one_pair, compiled_query
 from jaxsat._poses import Pose
 from jaxsat._sat import intersects, penetration
@@ -306,7 +307,7 @@ def compound_penetration(a: Compound | Polytope, pose_a: Pose, b: Compound | Pol
     a, b, real_pairs = _prepare(a, pose_a, b, pose_b)
     pairs = _over_piece_pairs(penetration.uncompiled, a, pose_a, b, pose_b)
     # Padding pairs get -inf (never the maximum); the `where` passes them no gradient.
-    depths = jnp.where(real_pairs, pairs.depth, -jnp.inf).reshape(-1)
+    depths = where(real_pairs, pairs.depth, -jnp.inf).reshape(-1)
     best = jnp.argmax(depths)
     piece_a, piece_b = jnp.divmod(best, b.num_pieces)
     return CompoundPenetration(depth=depths[best], normal=pairs.normal[piece_a, piece_b],

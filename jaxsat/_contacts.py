@@ -39,6 +39,7 @@ from jaxsat._kernels import (
     orthonormal_basis,
     rotate,
     safe_divide,
+    where,
 )
 from jaxsat._pair import PairFrame, check_pair, compiled_query, pair_frame
 from jaxsat._poses import Pose
@@ -276,13 +277,13 @@ def _assemble(candidates: _Candidates, edges, edge_edge, depth, frame: _Frame):
     Returns them and whether the single point was used."""
     single = edge_edge | ~jnp.any(candidates.valid)
     single_point, candidates = materialize((_closest_midpoint(*edges), candidates))
-    points = jnp.where(single, single_point[None], candidates.points)
-    depths = jnp.where(single, depth, candidates.depths)
+    points = where(single, single_point[None], candidates.points)
+    depths = where(single, depth, candidates.depths)
     first = jnp.arange(depths.shape[0]) == 0
-    valid = jnp.where(single, first, candidates.valid) & (depth >= -frame.margin)
+    valid = where(single, first, candidates.valid) & (depth >= -frame.margin)
     # Invalid slots copy slot 0, which always holds finite values.
-    points = jnp.where(valid[:, None] | first[:, None], points, points[0])
-    depths = jnp.where(valid | first, depths, depths[0])
+    points = where(valid[:, None] | first[:, None], points, points[0])
+    depths = where(valid | first, depths, depths[0])
     return points, depths, valid, single
 
 
@@ -308,9 +309,9 @@ def _polygon_face(vertices, mask, direction, tol) -> _Face:
     squared = dot(edges, edges)
     real = mask & (squared > 0)  # padding edges have zero length
     normals = jnp.stack([edges[:, 1], -edges[:, 0]], axis=-1)
-    normals = normals * jax.lax.rsqrt(jnp.where(real, squared, 1.0))[:, None]
+    normals = normals * jax.lax.rsqrt(where(real, squared, 1.0))[:, None]
     at_support = real & (near | jnp.roll(near, -1))
-    best = jnp.argmax(jnp.where(at_support, dot(normals, direction), -jnp.inf))
+    best = jnp.argmax(where(at_support, dot(normals, direction), -jnp.inf))
     start, end = vertices[best], ends[best]
     return _Face(start[None], end[None], jnp.ones(1, bool), normals[best], (start + end) / 2)
 
@@ -323,8 +324,8 @@ def _point_at(face: _Face, across, tangent, normal, deeper: float):
     first, span = dot(start, tangent), dot(end - start, tangent)
     ok = jnp.abs(span) > 0
     fraction = jnp.clip(safe_divide(across - first, span, ok), 0.0, 1.0)
-    end_on = jnp.where(deeper * dot(end - start, normal) > 0, 1.0, 0.0)
-    fraction = jnp.where(ok, fraction, end_on)
+    end_on = where(deeper * dot(end - start, normal) > 0, 1.0, 0.0)
+    fraction = where(ok, fraction, end_on)
     return start + fraction[:, None] * (end - start)
 
 
@@ -349,7 +350,7 @@ def _clip_segments(face_a: _Face, face_b: _Face, normal, tol) -> _Candidates:
 
 def _valid_first(candidates: _Candidates) -> _Candidates:
     """The two 2D candidates, swapped if only the second is valid."""
-    order = jnp.where(candidates.valid[0], jnp.arange(2), jnp.arange(2)[::-1])
+    order = where(candidates.valid[0], jnp.arange(2), jnp.arange(2)[::-1])
     return jax.tree.map(lambda field: field[order], candidates)
 
 
@@ -383,9 +384,9 @@ def _hull_face(shape: Polytope, vertices, face_normals, direction, tol):
     ends = vertices[shape.edge_endpoints]  # (K, 2, 3)
     support = dot(ends, direction)  # (K, 2)
     at_support = shape.hull_edge_mask & jnp.any(support >= jnp.max(support) - tol, axis=1)
-    alignment = jnp.where(at_support[:, None], dot(face_normals, direction), -jnp.inf)
+    alignment = where(at_support[:, None], dot(face_normals, direction), -jnp.inf)
     best = jnp.argmax(alignment.reshape(-1))  # over (edge, side) pairs
-    top = jnp.argmax(jnp.where(shape.hull_edge_mask, jnp.min(support, axis=1), -jnp.inf))
+    top = jnp.argmax(where(shape.hull_edge_mask, jnp.min(support, axis=1), -jnp.inf))
     face = _face_slots(shape, ends, best, face_normals.reshape(-1, 3)[best])
     return face, (ends[top, 0], ends[top, 1])
 
@@ -405,13 +406,13 @@ def _face_slots(shape: Polytope, ends, best, normal) -> _Face:
     index, valid = _first_true(on_face, _num_slots(shape))
     start, end = ends[index, 0], ends[index, 1]
     count = jnp.maximum(jnp.sum(valid), 1).astype(ends.dtype)
-    centroid = jnp.sum(jnp.where(valid[:, None], start + end, 0.0), axis=0) / (2 * count)
+    centroid = jnp.sum(where(valid[:, None], start + end, 0.0), axis=0) / (2 * count)
     # Each edge runs counter-clockwise about the normal if its outward side faces away from
     # the centroid; swapping the others makes every corner start exactly one edge.
     forward = (dot(cross(end - start, normal), start - centroid) > 0)[:, None]
-    start, end = jnp.where(forward, start, end), jnp.where(forward, end, start)
-    start = jnp.where(valid[:, None], start, centroid)
-    end = jnp.where(valid[:, None], end, centroid)
+    start, end = where(forward, start, end), where(forward, end, start)
+    start = where(valid[:, None], start, centroid)
+    end = where(valid[:, None], end, centroid)
     return _Face(start, end, valid, normal, centroid)
 
 
@@ -454,7 +455,7 @@ def _corners_inside(face: _Face, start, other: _Face, other_start, other_edge, n
     the other face's plane. side = +1 for a's corners, -1 for b's (the depth is how far a's
     point is above b's along the normal)."""
     height, ok = _lift(other, face.start, normal)
-    sense = jnp.where(dot(other.normal, normal) > 0, 1.0, -1.0)
+    sense = where(dot(other.normal, normal) > 0, 1.0, -1.0)
     valid = face.valid & ok & _inside(other_start, other_edge, other, sense, start, tol)
     return _Candidates(points=face.start + (height / 2)[:, None] * normal,
                        depths=-side * height, valid=valid, across=start)
@@ -495,16 +496,16 @@ def _reduce(candidates: _Candidates, tol, size) -> _Candidates:
     step that adds no length or area beyond tol (coincident or collinear candidates) leaves
     its slot invalid."""
     valid, depths, across = candidates.valid, candidates.depths, candidates.across
-    deepest = jnp.max(jnp.where(valid, depths, -jnp.inf))
+    deepest = jnp.max(where(valid, depths, -jnp.inf))
     # Depths that a tilt of _TIE_ANGLE across the shapes explains count as equal: in a
     # near-flat contact the deepest point could be a sliver corner (where two nearly parallel
     # edges cross) that rounding or tiny tilts move from frame to frame.
     slack = tol + _TIE_ANGLE * 2 * size
     tied = valid & (depths >= deepest - slack)
-    first = jnp.argmax(jnp.where(tied, _KEY[0] * across[:, 0] + _KEY[1] * across[:, 1],
+    first = jnp.argmax(where(tied, _KEY[0] * across[:, 0] + _KEY[1] * across[:, 1],
                                  -jnp.inf))
     offset = across - across[first]
-    distance = jnp.where(valid, dot(offset, offset), -1.0)
+    distance = where(valid, dot(offset, offset), -1.0)
     second = jnp.argmax(distance)
     length = jnp.sqrt(jnp.maximum(distance[second], 0.0))
     third, fourth, has_third, has_fourth = _widest(across, valid, first, second, tol * length)
@@ -520,14 +521,14 @@ def _widest(across, valid, first, second, min_area):
     """The candidate making the largest triangle with `first` and `second`, the one adding the
     most area to that triangle (area as twice the area), and whether each adds over min_area."""
     p1, p2 = across[first], across[second]
-    area = jnp.where(valid, jnp.abs(cross2(p2 - p1, across - p1)), -1.0)
+    area = where(valid, jnp.abs(cross2(p2 - p1, across - p1)), -1.0)
     third = jnp.argmax(area)
     p3 = across[third]
-    orientation = jnp.where(cross2(p2 - p1, p3 - p1) >= 0, 1.0, -1.0)
+    orientation = where(cross2(p2 - p1, p3 - p1) >= 0, 1.0, -1.0)
     # A point outside the triangle adds the triangles it forms with the edges it sees.
     added = sum(jnp.maximum(-orientation * cross2(end - start, across - start), 0.0)
                 for start, end in ((p1, p2), (p2, p3), (p3, p1)))
-    added = jnp.where(valid, added, -1.0)
+    added = where(valid, added, -1.0)
     fourth = jnp.argmax(added)
     return third, fourth, area[third] > min_area, added[fourth] > min_area
 
@@ -547,7 +548,7 @@ def _closest_midpoint(start_1, end_1, start_2, end_2):
     eps = jnp.finfo(a.dtype).eps
     s = jnp.clip(safe_divide(b * f - c * e, denominator, denominator > eps * a * e), 0.0, 1.0)
     t = safe_divide(b * s + f, e, e > 0)
-    s = jnp.where(t < 0, jnp.clip(safe_divide(-c, a, a > 0), 0.0, 1.0), s)
-    s = jnp.where(t > 1, jnp.clip(safe_divide(b - c, a, a > 0), 0.0, 1.0), s)
+    s = where(t < 0, jnp.clip(safe_divide(-c, a, a > 0), 0.0, 1.0), s)
+    s = where(t > 1, jnp.clip(safe_divide(b - c, a, a > 0), 0.0, 1.0), s)
     t = jnp.clip(t, 0.0, 1.0)
     return (start_1 + s * d1 + start_2 + t * d2) / 2

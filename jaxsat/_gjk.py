@@ -161,8 +161,8 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
         weights = [jnp.zeros((), dtype)] * (dim + 1)
         for size in range(1, dim + 2):
             face_weights, _ = _barycentric(points[:size])
-            weights = [jnp.where(count == size, face_weights[s], w) if s < size else
-                       jnp.where(count == size, 0.0, w) for s, w in enumerate(weights)]
+            weights = [k.where(count == size, face_weights[s], w) if s < size else
+                       k.where(count == size, 0.0, w) for s, w in enumerate(weights)]
         return weights
 
     def step(state: _State) -> _State:
@@ -175,8 +175,8 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
         w = point_of(new_pair)
         known = (squared - k.vdot(v, w) <= tolerance * jnp.sqrt(squared)) | (
             squared <= tolerance * tolerance)
-        new_pair = k.materialize(jnp.where(known, -1 - new_pair, new_pair))
-        known, new_pair = new_pair < 0, jnp.where(new_pair < 0, -1 - new_pair, new_pair)
+        new_pair = k.materialize(k.where(known, -1 - new_pair, new_pair))
+        known, new_pair = new_pair < 0, k.where(new_pair < 0, -1 - new_pair, new_pair)
         w = k.materialize(point_of(new_pair))
         # One stored int: the nearest face holding w (its index in `faces`), -1 when it
         # brings v closer by less than the tolerance (rounding: stop, or it may cycle).
@@ -189,13 +189,13 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
                 valid = valid & used[s]
             face_squared = (jnp.zeros((), dtype) if len(face) == dim + 1
                             else k.vdot(*(closest(corners, weights),) * 2))
-            face_squared = jnp.where(valid, face_squared, jnp.inf)
+            face_squared = k.where(valid, face_squared, jnp.inf)
             if best_squared is None:
                 best_squared, best_face = face_squared, jnp.zeros((), jnp.int32)
             else:
                 better = face_squared < best_squared
-                best_squared = jnp.where(better, face_squared, best_squared)
-                best_face = jnp.where(better, index, best_face)
+                best_squared = k.where(better, face_squared, best_squared)
+                best_face = k.where(better, index, best_face)
         # Encoded with the face: whether to take it (else keep the old simplex), and whether
         # it shortens v by more than the tolerance (else stop after it: rounding, which could
         # cycle). A face no longer than v within the tolerance is taken: w's gap says v is not
@@ -204,7 +204,7 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
         slack = 2 * tolerance * jnp.sqrt(squared)
         closer = best_squared < squared + slack
         progress = squared - best_squared > slack
-        coded = k.materialize(jnp.where(closer, best_face, -1) * 2 + progress.astype(jnp.int32))
+        coded = k.materialize(k.where(closer, best_face, -1) * 2 + progress.astype(jnp.int32))
         best_face, progress = coded // 2, coded % 2 == 1
         keep = known | (best_face < 0)
         # The full simplex holds the origin (the sets overlap or touch): stop after it too.
@@ -217,12 +217,12 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
                 if slot < len(face):
                     chosen = best_face == index
                     if face[slot] < 0:
-                        pair, point = jnp.where(chosen, new_pair, pair), k.vselect(chosen, w,
+                        pair, point = k.where(chosen, new_pair, pair), k.vselect(chosen, w,
                                                                                     point)
                     else:
-                        pair = jnp.where(chosen, state.pairs[face[slot]], pair)
+                        pair = k.where(chosen, state.pairs[face[slot]], pair)
                         point = k.vselect(chosen, points[face[slot]], point)
-            pairs.append(jnp.where(keep, state.pairs[slot], pair))
+            pairs.append(k.where(keep, state.pairs[slot], pair))
             new_points.append(k.vselect(keep, points[slot], point))
         return _State(tuple(pairs), tuple(new_points), state.iterations + 1, stop)
 

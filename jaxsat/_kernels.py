@@ -17,12 +17,12 @@ and "Distance"); breaking one typically costs 2x or more.
    `support_point`) fuses; a 2-D array of depths is reduced row by row and then once more.
 3. **Select, not maximum, at ties.** `jnp.maximum` splits a gradient between tied entries,
    and under `jit` XLA may recompute the tied values with different roundings in the
-   backward pass, so that the shares no longer sum to 1. A select (`jnp.where(p > best, ...)`)
+   backward pass, so that the shares no longer sum to 1. A select (`where(p > best, ...)`)
    sends the whole gradient to one entry.
 4. **Double `where` for every guarded division, square root or logarithm.** The untaken
-   branch of `jnp.where` is still differentiated: `jnp.where(ok, x / y, 0)` has a NaN
+   branch of a select is still differentiated: `where(ok, x / y, 0)` has a NaN
    gradient where y = 0. The safe functions here replace the bad input first
-   (`jnp.where(ok, y, 1)`) and say which NaN they prevent.
+   (`where(ok, y, 1)`) and say which NaN they prevent.
 5. **Materialise values with many consumers.** XLA's CPU backend does not fuse one
    computation into several outputs: a value feeding several stored results (the outputs of a
    loop step, the weights of a simplex) is recomputed inside each of them, and a cheap
@@ -30,7 +30,10 @@ and "Distance"); breaking one typically costs 2x or more.
    (optimisation barriers are dropped before fusion on CPU, so they cannot). End an
    expensive stage in one stored value (an index, a code packing several decisions, one
    reduction's array) and derive the outputs from it cheaply.
-6. **Count the passes.** Every fusion is a pass over the whole batch, and XLA keeps an
+6. **Trace each select once.** `jnp.where` is itself a jitted function: every call adds a
+   nested jit that is traced again under `vmap` and again under `grad`, and a distance query
+   makes about 800 of them. `where` here is the same select written directly.
+7. **Count the passes.** Every fusion is a pass over the whole batch, and XLA keeps an
    expensive operation (divide, square root, exponential) that has several users in a pass of
    its own rather than repeat it; a loop step of scalar algebra can so become 100 passes.
    Iterative per-pair code is written in scalar form (`Vec`), so that everything between two
@@ -71,7 +74,19 @@ __all__ = [
     "vselect",
     "vsub",
     "vsum",
+    "where",
 ]
+
+
+def where(condition, x, y):
+    """jnp.where(condition, x, y) as one `lax.select` (rule 6), with jnp.where's dtype and
+    broadcasting rules: a Python scalar takes the other operand's dtype, and two Python
+    scalars of one kind stay weakly typed."""
+    x, y = jnp.asarray(x), jnp.asarray(y)
+    if x.dtype != y.dtype:
+        dtype = jnp.result_type(x, y)
+        x, y = x.astype(dtype), y.astype(dtype)
+    return jax.lax.select(*jnp.broadcast_arrays(condition, x, y))
 
 
 def project(axes, points):
@@ -112,14 +127,14 @@ def chord(x, y):
 def safe_divide(numerator, denominator, ok):
     """numerator / denominator where `ok`, else 0. Prevents the NaN gradient of x / 0 in the
     untaken branch (rule 4)."""
-    return jnp.where(ok, numerator / jnp.where(ok, denominator, 1.0), 0.0)
+    return where(ok, numerator / where(ok, denominator, 1.0), 0.0)
 
 
 def safe_sqrt(x):
     """sqrt(max(x, 0)) with a zero gradient at 0 instead of the infinite d sqrt / dx (whose
     product with a zero cotangent is NaN)."""
     positive = x > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
+    return where(positive, jnp.sqrt(where(positive, x, 1.0)), 0.0)
 
 
 def safe_normalize(vectors, min_squared_norm):
@@ -127,15 +142,15 @@ def safe_normalize(vectors, min_squared_norm):
     `min_squared_norm` give zeros and False. Prevents the NaN of 0 / 0 (and its gradient)."""
     squared = jnp.sum(vectors**2, axis=-1, keepdims=True)
     valid = squared > min_squared_norm
-    safe_squared = jnp.where(valid, squared, 1.0)
-    return jnp.where(valid, vectors * jax.lax.rsqrt(safe_squared), 0.0), valid[..., 0]
+    safe_squared = where(valid, squared, 1.0)
+    return where(valid, vectors * jax.lax.rsqrt(safe_squared), 0.0), valid[..., 0]
 
 
 def orthonormal_basis(normal):
     """Two unit vectors completing a unit 3D `normal` to a right-handed orthonormal basis
     (Duff et al. 2017: branch-free; continuous except where normal's z changes sign)."""
     x, y, z = normal[0], normal[1], normal[2]
-    sign = jnp.where(z >= 0, 1.0, -1.0).astype(normal.dtype)
+    sign = where(z >= 0, 1.0, -1.0).astype(normal.dtype)
     scale = -1.0 / (sign + z)
     mixed = x * y * scale
     first = jnp.stack([1.0 + sign * x * x * scale, sign * mixed, -sign * x])
@@ -150,8 +165,8 @@ def extremes(axes: list[jax.Array], points):
     low = high = None
     for v in range(points.shape[0]):
         p = sum(axis * points[v, k] for k, axis in enumerate(axes))
-        low = p if low is None else jnp.where(p < low, p, low)
-        high = p if high is None else jnp.where(p > high, p, high)
+        low = p if low is None else where(p < low, p, low)
+        high = p if high is None else where(p > high, p, high)
     return low, high
 
 
@@ -208,7 +223,7 @@ def vcross2(x: Vec, y: Vec):
 
 
 def vselect(condition, x: Vec, y: Vec) -> Vec:
-    return tuple(jnp.where(condition, a, b) for a, b in zip(x, y, strict=True))
+    return tuple(where(condition, a, b) for a, b in zip(x, y, strict=True))
 
 
 def support_index(direction: Vec, points: list[Vec]):
@@ -221,8 +236,8 @@ def support_index(direction: Vec, points: list[Vec]):
     for v in range(1, len(points)):
         p = vdot(direction, points[v])
         better = p > best
-        best = jnp.where(better, p, best)
-        best_index = jnp.where(better, v, best_index)
+        best = where(better, p, best)
+        best_index = where(better, v, best_index)
     return materialize(best_index)
 
 
@@ -237,7 +252,10 @@ def take_vec(points: list[Vec], index) -> Vec:
 
 def materialize(tree):
     """The same values, computed once and stored (rule 5): a reduction is not fused into its
-    consumers, and a maximum with the smallest value is exact."""
+    consumers, and a maximum with the smallest value is exact. Holds in batched programs
+    only: when the leaf is a scalar (an unbatched program, as an eager call compiles) XLA
+    rewrites the reduction into an elementwise maximum and copies its producer into every
+    consumer (`tests/test_kernels.py`)."""
     def stored(leaf):
         if jnp.issubdtype(leaf.dtype, jnp.floating):
             lowest = -jnp.inf

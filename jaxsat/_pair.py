@@ -116,7 +116,7 @@ def compiled_query(check, static_argnames=()):
     Python first (so bad input raises a clear error, never a tracing failure), then the query
     runs through `jax.jit`. An eager call compiles once per size class, dtype and static
     option and then costs one dispatch; under a user's `jit`, `vmap` or `grad` the query is
-    traced into theirs.
+    traced into theirs directly (a nested jit would be traced again by each transformation).
 
     Eager calls keep XLA's default options. Its cheaper CPU settings (fusion emitters off,
     backend optimisation level 0, no expensive LLVM passes) cut a first distance call from
@@ -129,6 +129,8 @@ def compiled_query(check, static_argnames=()):
         @functools.wraps(function)
         def query(*args, **kwargs):
             check(*args, **kwargs)
+            if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
+                return function(*args, **kwargs)
             return compiled(*args, **kwargs)
 
         query.uncompiled = function

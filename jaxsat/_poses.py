@@ -8,6 +8,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsat._kernels import where
+
 __all__ = ["Pose", "pose2", "pose3"]
 
 
@@ -96,7 +98,7 @@ def pose3(translation, quaternion_wxyz) -> Pose:
     squared_norm = jnp.sum(quaternion**2)
     nonzero = squared_norm > jnp.finfo(quaternion.dtype).tiny
     # Double `where`: the untaken branch must not divide by zero, or its gradient is NaN.
-    safe = jnp.where(nonzero, quaternion, jnp.array([1, 0, 0, 0], quaternion.dtype))
+    safe = where(nonzero, quaternion, jnp.array([1, 0, 0, 0], quaternion.dtype))
     w, x, y, z = safe / jnp.sqrt(jnp.sum(safe**2))
     rotation = jnp.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],

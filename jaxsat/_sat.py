@@ -23,7 +23,15 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxsat._kernels import cross, dot, extremes, project, rotate, safe_normalize
+from jaxsat._kernels import (
+    cross,
+    dot,
+    extremes,
+    project,
+    rotate,
+    safe_normalize,
+    where,
+)
 from jaxsat._pair import PairFrame, cast_pair, check_pair, compiled_query, pair_frame
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
@@ -77,8 +85,8 @@ class ProjectedAxes(NamedTuple):
 
     def feature(self, index) -> jax.Array:
         """() int32: which `SatAxis.feature` candidate `index` is."""
-        return jnp.where(index < self.num_faces_a, FACE_OF_A,
-                         jnp.where(index < self.num_faces, FACE_OF_B, EDGE_PAIR)
+        return where(index < self.num_faces_a, FACE_OF_A,
+                         where(index < self.num_faces, FACE_OF_B, EDGE_PAIR)
                          ).astype(jnp.int32)
 
 
@@ -100,7 +108,7 @@ class GaussMapAxes(NamedTuple):
         orientation rule of `_edge_axes_by_gauss_map` (BDC > 0)."""
         row, col = jnp.divmod(index, self.directions_b.shape[0])
         crossed = cross(self.directions_a[row], self.directions_b[col])
-        sign = jnp.where(jnp.dot(self.normals_a[row], self.directions_b[col]) > 0, 1.0, -1.0)
+        sign = where(jnp.dot(self.normals_a[row], self.directions_b[col]) > 0, 1.0, -1.0)
         return sign * safe_normalize(crossed, 0.0)[0]
 
 
@@ -120,7 +128,7 @@ FACE_OF_A, FACE_OF_B, EDGE_PAIR = 0, 1, 2
 def _interval_depths(a_min, a_max, b_min, b_max):
     """The better sense of each axis: depth min(b pushed along +n, along -n), and its sign."""
     plus, minus = a_max - b_min, b_max - a_min
-    return jnp.minimum(plus, minus), jnp.where(plus <= minus, 1.0, -1.0).astype(plus.dtype)
+    return jnp.minimum(plus, minus), where(plus <= minus, 1.0, -1.0).astype(plus.dtype)
 
 
 def _projected_axes(a: Polytope, b: Polytope, b_vertices_in_a, rotation,
@@ -139,10 +147,10 @@ def _projected_axes(a: Polytope, b: Polytope, b_vertices_in_a, rotation,
     eps = jnp.finfo(squared.dtype).eps
     valid = squared > eps * eps  # parallel edges give no axis
     # Double `where`: the invalid branch never reaches rsqrt(0), so no NaN in any gradient.
-    inverse_norm = jax.lax.rsqrt(jnp.where(valid, squared, 1.0))
+    inverse_norm = jax.lax.rsqrt(where(valid, squared, 1.0))
     depths, signs = _interval_depths(*extremes(axes, a.vertices),
                                      *extremes(axes, b_vertices_in_a))
-    depths = jnp.where(valid, depths * inverse_norm, jnp.inf)
+    depths = where(valid, depths * inverse_norm, jnp.inf)
     num_faces_a = a.face_normals.shape[0]
     return ProjectedAxes(depths, tuple(axes), inverse_norm, signs, num_faces_a,
                          num_faces_a + b.face_normals.shape[0])
@@ -184,11 +192,11 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation) -> 
     min_sine = 1000 * jnp.finfo(sine_squared.dtype).eps
     valid = minkowski_face & (sine_squared > min_sine * min_sine)
     # The Gauss-map arcs fix the orientation: the axis e_a x e_b points out of a iff BDC > 0.
-    orientation = jnp.where(bdc > 0, 1.0, -1.0).astype(sine_squared.dtype)
-    inverse_sine = jax.lax.rsqrt(jnp.where(valid, sine_squared, 1.0))
+    orientation = where(bdc > 0, 1.0, -1.0).astype(sine_squared.dtype)
+    inverse_sine = jax.lax.rsqrt(where(valid, sine_squared, 1.0))
     moment_a, moment_b = cross(dir_a, points_a), cross(dir_b, points_b)
     numerator = -project(moment_a, dir_b) - project(dir_a, moment_b)
-    depths = jnp.where(valid, numerator * orientation * inverse_sine, jnp.inf)
+    depths = where(valid, numerator * orientation * inverse_sine, jnp.inf)
     return GaussMapAxes(depths, dir_a, dir_b, na2)
 
 
@@ -236,7 +244,7 @@ def _smallest(entries):
     best = entries[0]
     for entry in entries[1:]:
         better = entry[0] < best[0]
-        best = tuple(jnp.where(better, new, old) for new, old in zip(entry, best, strict=True))
+        best = tuple(where(better, new, old) for new, old in zip(entry, best, strict=True))
     return best
 
 
@@ -246,14 +254,14 @@ def _winners(found: Candidates, exclude_near=None, min_cosine=None):
     projected = found.projected
     depths = projected.depths
     if exclude_near is not None:
-        depths = jnp.where(projected.cosines_to(exclude_near) >= min_cosine, jnp.inf, depths)
+        depths = where(projected.cosines_to(exclude_near) >= min_cosine, jnp.inf, depths)
     depth, index = _winner(depths)
     entries = [(depth, projected.axis(index), projected.feature(index))]
     if found.gauss_map is not None:
         depth, index = _winner(found.gauss_map.depths)
         axis = found.gauss_map.axis(index)
         if exclude_near is not None:
-            depth = jnp.where(dot(axis, exclude_near) >= min_cosine, jnp.inf, depth)
+            depth = where(dot(axis, exclude_near) >= min_cosine, jnp.inf, depth)
         entries.append((depth, axis, jnp.asarray(EDGE_PAIR, jnp.int32)))
     return entries
 
@@ -287,8 +295,8 @@ def sat_search(frame: PairFrame, prune: bool = True) -> SatAxis:
         along = _support(axis, frame.a.vertices) + _support(-axis, frame.b_vertices)
         against = _support(-axis, frame.a.vertices) + _support(axis, frame.b_vertices)
         turned = against < along
-        depth = jnp.where(turned, against, along)
-        axis = jnp.where(turned, -axis, axis)
+        depth = where(turned, against, along)
+        axis = where(turned, -axis, axis)
     return SatAxis(depth, axis, feature)
 
 
@@ -301,7 +309,7 @@ def sat_runner_up(frame: PairFrame, min_angle) -> jax.Array:
     found = candidates(frame)
     _, winner, _ = _smallest(_winners(found))
     best_depth, best_axis, _ = _smallest(_winners(found, winner, jnp.cos(min_angle)))
-    return jnp.where(jnp.isfinite(best_depth), best_axis, winner)
+    return where(jnp.isfinite(best_depth), best_axis, winner)
 
 
 def _check_penetration(a, pose_a, b, pose_b, *, prune=True) -> None:

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsat import _geometry as geometry
+from jaxsat._kernels import where
 
 __all__ = ["Polytope", "SizeClass", "box", "float_dtype", "pad_and_stack", "polygon",
            "polyhedron", "regular_polygon", "ring_neighbours", "size_class_for", "stack"]
@@ -120,8 +121,8 @@ def ring_neighbours(index, count):
     come after them, so the ring closes at count - 1, not at the padded end)."""
     count = jnp.asarray(count)
     index = jnp.asarray(index, count.dtype)
-    previous = jnp.where(index == 0, count - 1, index - 1)
-    following = jnp.where(index + 1 >= count, 0, index + 1)
+    previous = where(index == 0, count - 1, index - 1)
+    following = where(index + 1 >= count, 0, index + 1)
     return previous, following
 
 

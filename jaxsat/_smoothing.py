@@ -43,7 +43,7 @@ import jax.numpy as jnp
 
 from jaxsat import _kernels as kernels
 from jaxsat._closest import exact_distance
-from jaxsat._kernels import Vec, dot, materialize, safe_divide
+from jaxsat._kernels import Vec, dot, materialize, safe_divide, where
 from jaxsat._pair import PairFrame
 from jaxsat._sat import sat_runner_up
 from jaxsat._shapes import Polytope
@@ -80,9 +80,9 @@ class _Moments(NamedTuple):
 
 def _soft_max(projections, mask, tau):
     """tau log sum exp(x / tau) over the real entries."""
-    top = jnp.max(jnp.where(mask, projections, -jnp.inf))
+    top = jnp.max(where(mask, projections, -jnp.inf))
     # Padding never reaches exp (double where): no inf * 0 in any gradient.
-    terms = jnp.where(mask, jnp.exp((jnp.where(mask, projections, top) - top) / tau), 0.0)
+    terms = where(mask, jnp.exp((where(mask, projections, top) - top) / tau), 0.0)
     return top + tau * jnp.log(jnp.sum(terms))
 
 
@@ -124,9 +124,9 @@ def _packed_moments(summary: _Summary, axis: Vec, tau) -> jax.Array:
     softmax-weighted sums of the features: three passes over a batch (the maxima, the
     weights, stored because every sum reads them, and the sums in one reduction)."""
     projections = sum(summary.points[:, k] * axis[k] for k in range(len(axis)))
-    top = jnp.max(jnp.where(summary.mask, projections, -jnp.inf), axis=1)
-    shifted = jnp.where(summary.mask, projections - top[:, None], 0.0)
-    weights = materialize(jnp.where(summary.mask, jnp.exp(shifted / tau), 0.0))
+    top = jnp.max(where(summary.mask, projections, -jnp.inf), axis=1)
+    shifted = where(summary.mask, projections - top[:, None], 0.0)
+    weights = materialize(where(summary.mask, jnp.exp(shifted / tau), 0.0))
     sums = jnp.sum(weights[:, :, None] * summary.features[None], axis=1)
     soft = top + tau * jnp.log(sums[:, 0]) + sum(summary.offsets[:, k] * axis[k]
                                                  for k in range(len(axis)))
@@ -194,8 +194,8 @@ def _trust_region_step(gradient, hessian, radius):
         curvature, slope = hessian[0][0], gradient[0]
         newton = -safe_divide(slope, curvature, curvature < 0)
         fits = (curvature < 0) & (jnp.abs(newton) <= radius)
-        sense = jnp.where(slope < 0, -1.0, 1.0).astype(dtype)
-        step = (jnp.where(fits, newton, sense * radius),)
+        sense = where(slope < 0, -1.0, 1.0).astype(dtype)
+        step = (where(fits, newton, sense * radius),)
         return step, slope * step[0] + 0.5 * curvature * step[0] ** 2
     (h00, h01), (_, h11) = hessian
     # Eigen-decomposition of the symmetric 2 x 2 Hessian: values low <= high.
@@ -208,10 +208,10 @@ def _trust_region_step(gradient, hessian, radius):
     first_squared, second_squared = kernels.vdot(first, first), kernels.vdot(second, second)
     use_first = first_squared >= second_squared
     chosen = kernels.vselect(use_first, first, second)
-    chosen_squared = jnp.where(use_first, first_squared, second_squared)
+    chosen_squared = where(use_first, first_squared, second_squared)
     found = chosen_squared > (eps * scale) ** 2
-    norm = jax.lax.rsqrt(jnp.where(found, chosen_squared, 1.0))
-    top = (jnp.where(found, chosen[0] * norm, 1.0), jnp.where(found, chosen[1] * norm, 0.0))
+    norm = jax.lax.rsqrt(where(found, chosen_squared, 1.0))
+    top = (where(found, chosen[0] * norm, 1.0), where(found, chosen[1] * norm, 0.0))
     bottom = (-top[1], top[0])
     along_top, along_bottom = kernels.vdot(top, gradient), kernels.vdot(bottom, gradient)
     # d(mu) = g_top / (mu - high) top + g_bottom / (mu - low) bottom, for mu > high.
@@ -236,10 +236,10 @@ def _trust_region_step(gradient, hessian, radius):
     # Hard case: too short even as mu reaches the largest eigenvalue (g has (almost) no part
     # along its eigenvector): add that eigenvector up to the boundary.
     short = radius**2 - boundary_top**2 - boundary_bottom**2
-    sense = jnp.where(along_top < 0, -1.0, 1.0).astype(dtype)
+    sense = where(along_top < 0, -1.0, 1.0).astype(dtype)
     boundary_top = boundary_top + sense * jnp.sqrt(jnp.maximum(short, 0.0))
-    step_top = jnp.where(fits, newton_top, boundary_top)
-    step_bottom = jnp.where(fits, newton_bottom, boundary_bottom)
+    step_top = where(fits, newton_top, boundary_top)
+    step_bottom = where(fits, newton_bottom, boundary_bottom)
     step = kernels.vadd(kernels.vscale(step_top, top), kernels.vscale(step_bottom, bottom))
     gain = (along_top * step_top + along_bottom * step_bottom
             + 0.5 * (high * step_top**2 + low * step_bottom**2))
@@ -292,11 +292,11 @@ def _search(frame: PairFrame, tau, start):
         code = kernels.materialize(bits[0] + 2 * bits[1] + 4 * bits[2] + 8 * bits[3])
         better, stretch_more = code % 2 == 1, (code // 2) % 2 == 1
         shrink, grow = (code // 4) % 2 == 1, (code // 8) % 2 == 1
-        radius = jnp.where(shrink, 0.25 * length, jnp.where(grow, 2.0 * radius, radius))
+        radius = where(shrink, 0.25 * length, where(grow, 2.0 * radius, radius))
         radius = jnp.clip(radius, 16 * eps, _MAX_RADIUS)
-        boost = jnp.where(stretch_more, jnp.minimum(2.0 * boost, 64.0), 1.0)
-        return (jnp.where(better, jnp.stack(trial), jnp.stack(axis)),
-                jnp.where(better, trial_packed, packed), radius, boost.astype(radius.dtype))
+        boost = where(stretch_more, jnp.minimum(2.0 * boost, 64.0), 1.0)
+        return (where(better, jnp.stack(trial), jnp.stack(axis)),
+                where(better, trial_packed, packed), radius, boost.astype(radius.dtype))
 
     radius = jnp.minimum(_FIRST_RADIUS * tau / extent, _MAX_RADIUS)
     state = (start, _packed_moments(summary, kernels.as_vec(start), tau), radius,
@@ -324,7 +324,7 @@ def _maximiser(frame: PairFrame, tau):
     starts = jnp.stack([exact_distance(frozen).axis, sat_runner_up(frozen, apart)])
     axes = jax.vmap(_search, in_axes=(None, None, 0))(frozen, tau, starts)
     values = jax.vmap(soft_gap, in_axes=(None, 0, None))(frozen, axes, tau)
-    return jnp.where(values[1] > values[0], axes[1], axes[0])
+    return where(values[1] > values[0], axes[1], axes[0])
 
 
 @_maximiser.defjvp
@@ -375,7 +375,7 @@ def smooth_signed_distance(frame: PairFrame, tau) -> jax.Array:
     extent = jax.lax.stop_gradient(jnp.max(jnp.abs(frame.a.vertices))
                                    + jnp.max(jnp.abs(frame.b_vertices)))
     floor = 16 * jnp.finfo(frame.dtype).eps * extent
-    return _smooth_value(frame, jnp.where(tau > floor, tau, floor))
+    return _smooth_value(frame, where(tau > floor, tau, floor))
 
 
 def smoothing_error_bound(a: Polytope, b: Polytope) -> jax.Array:
