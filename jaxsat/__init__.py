@@ -26,8 +26,10 @@ from jaxsat._sat import intersects as intersects
 from jaxsat._sat import penetration as penetration
 from jaxsat._scene import SceneCollisions as SceneCollisions
 from jaxsat._scene import collide as collide
+from jaxsat._shapes import CappedHull as CappedHull
 from jaxsat._shapes import Polytope as Polytope
 from jaxsat._shapes import box as box
+from jaxsat._shapes import cap_hull as cap_hull
 from jaxsat._shapes import polygon as polygon
 from jaxsat._shapes import polyhedron as polyhedron
 from jaxsat._shapes import regular_polygon as regular_polygon
@@ -38,6 +40,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "CandidatePairs",
+    "CappedHull",
     "ClosestPoints",
     "Compound",
     "CompoundPenetration",
@@ -48,6 +51,7 @@ __all__ = [
     "SceneCollisions",
     "box",
     "broad_phase",
+    "cap_hull",
     "closest_points",
     "collide",
     "compound",

@@ -6,6 +6,7 @@ vertices, builds 3D convex hulls and extracts the unique axes the SAT kernels ne
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -293,3 +294,118 @@ def _fit_normal(face_points: np.ndarray, guess: np.ndarray) -> np.ndarray:
         normal = np.linalg.svd(centred)[2][-1]
     normal = normal / np.linalg.norm(normal)
     return normal if normal @ guess > 0 else -normal
+
+
+# --------------------------------------------------------------------------------------------
+# Capping a hull's vertex count by dropping face planes (the result contains the hull).
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Faces:
+    normals: np.ndarray
+    """(F, 3) outward unit normals."""
+    offsets: np.ndarray
+    """(F,) max of normal . vertex: the face planes are normal . x = offset."""
+    areas: np.ndarray
+    """(F,) face areas."""
+    corners: list
+    """F sets of vertex indices, the corners of each face."""
+
+
+def _faces(hull: Hull3D) -> _Faces:
+    vertices = hull.vertices
+    tolerance = 1e3 * tolerance_for(vertices)
+    heights = vertices @ hull.face_normals.T  # (V, F)
+    offsets = heights.max(axis=0)
+    areas, corners = [], []
+    for face, normal in enumerate(hull.face_normals):
+        on_face = np.nonzero(heights[:, face] >= offsets[face] - tolerance)[0]
+        points = vertices[on_face]
+        centre = points.mean(axis=0)
+        first = points[0] - centre
+        first /= np.linalg.norm(first)
+        angles = np.arctan2((points - centre) @ np.cross(normal, first), (points - centre) @ first)
+        ring = points[np.argsort(angles)] - centre
+        areas.append(0.5 * float(np.sum(np.cross(ring, np.roll(ring, -1, axis=0)) @ normal)))
+        corners.append(set(on_face.tolist()))
+    return _Faces(hull.face_normals, offsets, np.array(areas), corners)
+
+
+def hull_volume(hull: Hull3D) -> float:
+    """Volume of a convex hull: faces times their heights above an interior point, over 3."""
+    faces = _faces(hull)
+    centre = hull.vertices.mean(axis=0)
+    return float(np.sum(faces.areas * (faces.offsets - faces.normals @ centre)) / 3.0)
+
+
+def _intersect_halfspaces(normals, offsets, centre) -> Hull3D | None:
+    """The polytope {x : normals . x <= offsets}, around an interior `centre`, or None when
+    it is unbounded. By polarity about the centre, each plane n . x = d is the point
+    n / (d - n . c), and each face of those points' hull (m . y = h) the vertex c + m / h;
+    the polytope is bounded exactly when the centre is inside that hull (every h > 0)."""
+    dual = normals / (offsets - normals @ centre)[:, None]
+    try:
+        dual_hull = convex_hull_3d(dual)
+    except ValueError:  # fewer than 4 planes, or all through one direction: unbounded
+        return None
+    heights = np.max(dual_hull.vertices @ dual_hull.face_normals.T, axis=0)
+    if np.min(heights) <= 1e3 * tolerance_for(dual_hull.vertices):
+        return None
+    corners = centre + dual_hull.face_normals / heights[:, None]
+    # Four or more planes through one corner can give dual faces a rounding apart, hence
+    # corners a rounding apart: keep one of each such cluster (the hull needs distinct points).
+    merge = 1e3 * tolerance_for(corners)
+    kept: list[np.ndarray] = []
+    for corner in corners:
+        if not kept or np.min(np.linalg.norm(np.array(kept) - corner, axis=1)) > merge:
+            kept.append(corner)
+    return convex_hull_3d(np.array(kept))
+
+
+def cap_hull_3d(points: np.ndarray, max_vertices: int) -> tuple[Hull3D, Hull3D]:
+    """(original hull, capped hull): a convex polytope with at most `max_vertices` vertices
+    that contains the hull of `points`, bounded by a subset of the hull's own face planes.
+
+    Greedy: each round drops the smallest-area faces that share no vertex (about a third of
+    the excess vertex count of them; dropping a triangle merges its 3 corners into 1), and
+    intersects the remaining face planes; a round whose planes no longer bound a polytope
+    drops one face at a time instead, smallest first. Every remaining plane supports the
+    original hull, so the result contains it; small faces first keeps the added volume small.
+
+    Raises:
+      ValueError: no subset of the face planes with at most `max_vertices` vertices bounds a
+        polytope (a tetrahedron, 4 vertices, always can be reached only if its 4 planes are
+        among the faces: `max_vertices` < 6 may fail on smooth shapes).
+    """
+    original = convex_hull_3d(points)
+    # Work about the hull's centre: corners are then computed without the rounding of a
+    # large offset (a small shape far from its frame's origin).
+    origin = original.vertices.mean(axis=0)
+    current = dataclasses.replace(original, vertices=original.vertices - origin)
+    while len(current.vertices) > max_vertices:
+        faces = _faces(current)
+        centre = current.vertices.mean(axis=0)
+        order = np.argsort(faces.areas)
+        wanted = max(1, (len(current.vertices) - max_vertices) // 3)
+        batch, touched = [], set()
+        for face in order:
+            if not faces.corners[face] & touched:
+                batch.append(face)
+                touched |= faces.corners[face]
+            if len(batch) == wanted:
+                break
+        attempts = [batch] + [[face] for face in order]
+        for dropped in attempts:
+            keep = np.ones(len(faces.normals), bool)
+            keep[dropped] = False
+            candidate = _intersect_halfspaces(faces.normals[keep], faces.offsets[keep], centre)
+            if candidate is not None:
+                break
+        else:
+            raise ValueError(f"cannot cap this hull at {max_vertices} vertices with its own "
+                             f"face planes (stuck at {len(current.vertices)})")
+        current = candidate
+    if len(original.vertices) <= max_vertices:
+        return original, original
+    return original, dataclasses.replace(current, vertices=current.vertices + origin)

@@ -13,8 +13,9 @@ import numpy as np
 from jaxsat import _geometry as geometry
 from jaxsat._kernels import where
 
-__all__ = ["Polytope", "SizeClass", "box", "float_dtype", "pad_and_stack", "polygon",
-           "polyhedron", "regular_polygon", "ring_neighbours", "size_class_for", "stack"]
+__all__ = ["CappedHull", "Polytope", "SizeClass", "box", "cap_hull", "float_dtype",
+           "pad_and_stack", "polygon", "polyhedron", "regular_polygon", "ring_neighbours",
+           "size_class_for", "stack"]
 
 
 class SizeClass(NamedTuple):
@@ -160,7 +161,9 @@ def _check_max_vertices(max_vertices: int | None, count: int) -> int:
     if int(max_vertices) != max_vertices or max_vertices < 1:
         raise ValueError(f"max_vertices must be a positive integer, got {max_vertices!r}")
     if count > max_vertices:
-        raise ValueError(f"shape has {count} vertices, more than max_vertices={max_vertices}")
+        hint = " (jaxsat.cap_hull simplifies a 3D hull to fewer)" if count >= 6 else ""
+        raise ValueError(f"shape has {count} vertices, more than max_vertices={max_vertices}"
+                         + hint)
     return int(max_vertices)
 
 
@@ -251,6 +254,53 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None,
     return _build(hull.vertices, normals, directions, hull.edges,
                   hull.face_normals[hull.edge_faces], sizes,
                   float_dtype(np.asarray(points), dtype))
+
+
+class CappedHull(NamedTuple):
+    """A convex polytope with at most a given number of vertices that contains a point cloud's
+    hull (`cap_hull`), and how much larger it is."""
+
+    vertices: np.ndarray
+    """(V, 3) float64: its vertices, V <= max_vertices; pass them to `polyhedron`."""
+    volume: float
+    """Volume of the original hull."""
+    added_volume: float
+    """Volume added by capping (>= 0, 0 when the hull already fits)."""
+
+    @property
+    def relative_added_volume(self) -> float:
+        """added_volume / volume."""
+        return self.added_volume / self.volume
+
+
+def cap_hull(points, max_vertices: int) -> CappedHull:
+    """A hull of at most `max_vertices` vertices that contains the hull of `points`, so that any
+    point cloud or mesh fits a size class (`polyhedron` raises instead when its hull has more
+    vertices than `max_vertices`).
+
+    The result is bounded by a subset of the hull's own face planes: every one supports the
+    original hull, so the capped polytope contains it (unlike a hull of a subset of the
+    points, as MuJoCo's vertex cap builds, which cuts corners off). Faces are dropped smallest
+    first, which keeps the added volume small; it is reported, as a collision margin would be.
+    Eager, in NumPy (about 2 s for a 162-vertex icosphere capped at 32).
+
+    Example:
+      capped = jaxsat.cap_hull(mesh_vertices, 32)
+      shape = jaxsat.polyhedron(capped.vertices, max_vertices=32)
+
+    Raises:
+      TypeError: non-numeric points.
+      ValueError: as `polyhedron` for the points; a `max_vertices` below 4; or a hull that
+        its own face planes cannot bound with so few vertices (possible below 6 vertices).
+    """
+    cloud = geometry.as_point_array(points, 3, "cap_hull points")
+    if int(max_vertices) != max_vertices or max_vertices < 4:
+        raise ValueError(f"max_vertices must be an integer >= 4 (a tetrahedron), got "
+                         f"{max_vertices!r}")
+    original, capped = geometry.cap_hull_3d(cloud, int(max_vertices))
+    volume = geometry.hull_volume(original)
+    added = 0.0 if capped is original else max(geometry.hull_volume(capped) - volume, 0.0)
+    return CappedHull(capped.vertices.copy(), volume, added)
 
 
 def box(half_extents, max_vertices: int | None = None, *, dtype=None,
