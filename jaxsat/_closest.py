@@ -177,7 +177,8 @@ def closest_pair_of_support_faces(a_vertices, a_count, b_vertices, b_count, axis
         windows.append((indices, [k.take_vec(points, index) for index in indices]))
     (indices_a, points_a), (indices_b, points_b) = windows
     candidates = []  # (side, edge start, point): side 0 puts a's points on b's edges
-    best_squared = best_t = best_code = None
+    parameters = []  # each candidate's t along its edge
+    best_squared = best_code = None
     for side, (points, ring) in enumerate(((points_a, points_b), (points_b, points_a))):
         for edge in range(2):
             start = ring[edge]
@@ -190,20 +191,26 @@ def closest_pair_of_support_faces(a_vertices, a_count, b_vertices, b_count, axis
                 miss = k.vsub(offset, k.vscale(t, along))
                 squared = k.vdot(miss, miss)
                 if best_squared is None:
-                    best_squared, best_t, best_code = squared, t, jnp.zeros((), jnp.int32)
+                    best_squared, best_code = squared, jnp.zeros((), jnp.int32)
                 else:
                     better = squared < best_squared
                     best_squared = k.where(better, squared, best_squared)
-                    best_t = k.where(better, t, best_t)
                     best_code = k.where(better, len(candidates), best_code)
                 candidates.append((side, edge, point))
-    best_code, best_t = k.materialize((best_code, best_t))
+                parameters.append(t)
+    # One stored decision, and everything read from it: a vertex-vertex closest pair is
+    # found by several candidates at once (a point at an edge's end, t = 0 or 1), and a
+    # second chain for t, fused apart, could round such a tie the other way and pair one
+    # candidate's edge with another's t.
+    best_code = k.materialize(best_code)
 
     def chosen(values):
         picked = values[0]
         for code in range(1, len(values)):
             picked = k.where(best_code == code, values[code], picked)
         return picked
+
+    best_t = chosen(parameters)
 
     slots_a, slots_b = [], []
     for side, edge, point in candidates:

@@ -251,17 +251,18 @@ def take_vec(points: list[Vec], index) -> Vec:
 
 
 def materialize(tree):
-    """The same values, computed once and stored (rule 5): a reduction is not fused into its
-    consumers, and a maximum with the smallest value is exact. Holds in batched programs
-    only: when the leaf is a scalar (an unbatched program, as an eager call compiles) XLA
-    rewrites the reduction into an elementwise maximum and copies its producer into every
-    consumer (`tests/test_kernels.py`)."""
+    """The same values, computed once and stored (rule 5): each leaf goes through a running
+    maximum after the smallest value, which XLA computes as a window reduction, a pass it
+    does not fuse into the consumers. (A plain reduction over a stack of two is rewritten into
+    an elementwise maximum when the leaf is a scalar, as in an unbatched program, and its
+    producer is then copied into every consumer: `tests/test_kernels.py`.) Exact, NaN
+    included. Each leaf is stored on its own: store one decision (an index, a code) and
+    derive the other outputs from it, since two leaves computed by two chains can round a
+    tie differently."""
     def stored(leaf):
-        if jnp.issubdtype(leaf.dtype, jnp.floating):
-            lowest = -jnp.inf
-        elif leaf.dtype == jnp.bool_:
-            return jnp.any(jnp.stack([leaf, jnp.zeros_like(leaf)]), axis=0)
-        else:
-            lowest = jnp.iinfo(leaf.dtype).min
-        return jnp.max(jnp.stack([leaf, jnp.full_like(leaf, lowest)]), axis=0)
+        if leaf.dtype == jnp.bool_:
+            return stored(leaf.astype(jnp.int8)).astype(jnp.bool_)
+        lowest = (-jnp.inf if jnp.issubdtype(leaf.dtype, jnp.floating)
+                  else jnp.iinfo(leaf.dtype).min)
+        return jax.lax.cummax(jnp.stack([jnp.full_like(leaf, lowest), leaf]), axis=0)[1]
     return jax.tree.map(stored, tree)

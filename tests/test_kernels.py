@@ -1,6 +1,6 @@
 """The kernel layer's rules that XLA could silently undo (jaxsat/_kernels.py, its docstring):
-`where` is jnp.where's select without a nested jit, and `materialize` stores a value once in
-a batched program (and, a known defect, not in an unbatched one)."""
+`where` is jnp.where's select without a nested jit, and `materialize` stores a value once, in
+an unbatched program (an eager call) as well as in a batched one."""
 
 from __future__ import annotations
 
@@ -86,20 +86,11 @@ def _expensive_then_four_consumers(x, store):
     return y + 1, y * 2, y - 3, jnp.cos(y)
 
 
-UNBATCHED_BARRIER_LOST = pytest.mark.xfail(strict=True, reason=(
-    "known defect: in an unbatched program XLA turns materialize's reduction into an "
-    "elementwise maximum and copies its producer into each consumer (an eager distance call "
-    "compiles 2x more code). A window reduction keeps the barrier, but with it the tests' "
-    "FAST_COMPILE build returned a wrong exact 2D distance: branch wip/materialize-cummax"))
-
-
-@pytest.mark.parametrize("batched", [pytest.param(False, marks=UNBATCHED_BARRIER_LOST), True],
-                         ids=["unbatched", "batched"])
-@pytest.mark.parametrize("store", [materialize], ids=["materialize"])
-def test_materialize_computes_its_value_once(store, batched):
+@pytest.mark.parametrize("batched", [False, True], ids=["unbatched", "batched"])
+def test_materialize_computes_its_value_once(batched):
     """With `materialize`, the 12 sines before it are compiled once, not copied into each of
     the four consumers."""
-    function = lambda x: _expensive_then_four_consumers(x, store)  # noqa: E731
+    function = lambda x: _expensive_then_four_consumers(x, materialize)  # noqa: E731
     x = jnp.ones((), jnp.float32)
     if batched:
         function, x = jax.vmap(function), jnp.ones((64,), jnp.float32)
