@@ -818,24 +818,11 @@ FAST_COMBINATIONS = {("box", np.float32)}
 """The (size class, dtype) combinations of the fast subset; the others are marked slow."""
 
 
-EAGER_COMBINATIONS = ({(size_class, np.float32) for size_class in CLASSES}
-                      | {("poly8", np.float64)})
-"""Where the eager-call property runs: every size class in float32 and one in float64. Each
-eager call compiles its query once per size class and dtype with XLA's default build (5-13 s
-for a distance query on 2 cores), which over every combination took more of the suite's
-12-minute budget than any other property; the dtype enters the traced program only through
-its casts, which the other properties check in both dtypes."""
-
-
-def every_query_class_dtype(test=None, *, combinations=None):
+def every_query_class_dtype(test):
     """Run `test(query, size_class, dtype)` for every public query, size class of the
-    catalogue (`CLASSES`) and dtype, or only the (size class, dtype) `combinations` given;
-    all but `FAST_COMBINATIONS` are marked slow. Use bare or with keyword arguments."""
-    if test is None:
-        return functools.partial(every_query_class_dtype, combinations=combinations)
+    catalogue (`CLASSES`) and dtype; all but `FAST_COMBINATIONS` are marked slow."""
     cases = [pytest.param(query, size_class, dtype, id=f"{query}-{size_class}-{dtype.__name__}",
                           marks=() if (size_class, dtype) in FAST_COMBINATIONS
                           else pytest.mark.slow)
-             for query in QUERIES for size_class in CLASSES for dtype in DTYPES
-             if combinations is None or (size_class, dtype) in combinations]
+             for query in QUERIES for size_class in CLASSES for dtype in DTYPES]
     return pytest.mark.parametrize(("query", "size_class", "dtype"), cases)(test)
