@@ -374,11 +374,13 @@ def cap_hull_3d(points: np.ndarray, max_vertices: int) -> tuple[Hull3D, Hull3D]:
     original hull, so the result contains it; small faces first keeps the added volume small.
 
     Raises:
-      ValueError: no subset of the face planes with at most `max_vertices` vertices bounds a
-        polytope (a tetrahedron, 4 vertices, always can be reached only if its 4 planes are
-        among the faces: `max_vertices` < 6 may fail on smooth shapes).
+      ValueError: the greedy rounds reach no bounded polytope with at most `max_vertices`
+        vertices (a tetrahedron needs 4 of the hull's planes that bound one, which a smooth
+        shape may not have: possible for `max_vertices` below 6).
     """
     original = convex_hull_3d(points)
+    if len(original.vertices) <= max_vertices:
+        return original, original
     # Work about the hull's centre: corners are then computed without the rounding of a
     # large offset (a small shape far from its frame's origin).
     origin = original.vertices.mean(axis=0)
@@ -406,6 +408,4 @@ def cap_hull_3d(points: np.ndarray, max_vertices: int) -> tuple[Hull3D, Hull3D]:
             raise ValueError(f"cannot cap this hull at {max_vertices} vertices with its own "
                              f"face planes (stuck at {len(current.vertices)})")
         current = candidate
-    if len(original.vertices) <= max_vertices:
-        return original, original
     return original, dataclasses.replace(current, vertices=current.vertices + origin)

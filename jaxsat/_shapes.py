@@ -155,13 +155,14 @@ def _maybe_unique(directions: np.ndarray, unique_axes: bool) -> np.ndarray:
     return geometry.unique_directions(directions) if unique_axes else directions
 
 
-def _check_max_vertices(max_vertices: int | None, count: int) -> int:
+def _check_max_vertices(max_vertices: int | None, count: int, dim: int) -> int:
     if max_vertices is None:
         return count
     if int(max_vertices) != max_vertices or max_vertices < 1:
         raise ValueError(f"max_vertices must be a positive integer, got {max_vertices!r}")
     if count > max_vertices:
-        hint = " (jaxsat.cap_hull simplifies a 3D hull to fewer)" if count >= 6 else ""
+        hint = (" (jaxsat.cap_hull simplifies a 3D hull to fewer)"
+                if dim == 3 and max_vertices >= 4 else "")
         raise ValueError(f"shape has {count} vertices, more than max_vertices={max_vertices}"
                          + hint)
     return int(max_vertices)
@@ -214,7 +215,7 @@ def polygon(vertices, max_vertices: int | None = None, *, dtype=None,
     """
     points = geometry.as_point_array(vertices, 2, "polygon vertices")
     ring = geometry.convex_polygon(points)
-    size = _check_max_vertices(max_vertices, len(ring))
+    size = _check_max_vertices(max_vertices, len(ring), 2)
     normals = _maybe_unique(geometry.polygon_edge_normals(ring), unique_axes)
     sizes = (size_class_for(2, size) if max_vertices is not None
              else SizeClass(size, len(normals), 0, 0))
@@ -248,7 +249,7 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None,
     segments = hull.vertices[hull.edges[:, 1]] - hull.vertices[hull.edges[:, 0]]
     lengths = np.linalg.norm(segments, axis=1, keepdims=True)
     directions = _maybe_unique(segments / lengths, unique_axes)
-    size = _check_max_vertices(max_vertices, len(hull.vertices))
+    size = _check_max_vertices(max_vertices, len(hull.vertices), 3)
     sizes = (size_class_for(3, size) if max_vertices is not None
              else SizeClass(size, len(normals), len(directions), len(hull.edges)))
     return _build(hull.vertices, normals, directions, hull.edges,

@@ -59,6 +59,8 @@ def test_a_hull_that_fits_is_returned_unchanged():
 def test_polyhedron_points_to_cap_hull_when_a_hull_does_not_fit():
     with pytest.raises(ValueError, match="cap_hull"):
         jaxsat.polyhedron(fibonacci_sphere(42), max_vertices=16)
+    with pytest.raises(ValueError, match=r"max_vertices=8$"):  # no 2D cap_hull to point to
+        jaxsat.regular_polygon(12, max_vertices=8)
 
 
 @pytest.mark.parametrize(("points", "max_vertices", "error", "message"), [
