@@ -15,24 +15,28 @@ from jaxsat._compound import stack_compounds as stack_compounds
 from jaxsat._contacts import Contacts as Contacts
 from jaxsat._contacts import contacts as contacts
 from jaxsat._decompose import decompose as decompose
-from jaxsat._distance import ClosestPoints as ClosestPoints
-from jaxsat._distance import closest_points as closest_points
-from jaxsat._distance import signed_distance as signed_distance
 from jaxsat._poses import Pose as Pose
 from jaxsat._poses import pose2 as pose2
 from jaxsat._poses import pose3 as pose3
-from jaxsat._sat import Penetration as Penetration
-from jaxsat._sat import intersects as intersects
-from jaxsat._sat import penetration as penetration
+from jaxsat._queries import ClosestPoints as ClosestPoints
+from jaxsat._queries import Penetration as Penetration
+from jaxsat._queries import closest_points as closest_points
+from jaxsat._queries import intersects as intersects
+from jaxsat._queries import penetration as penetration
+from jaxsat._queries import signed_distance as signed_distance
 from jaxsat._scene import SceneCollisions as SceneCollisions
 from jaxsat._scene import collide as collide
 from jaxsat._shapes import CappedHull as CappedHull
 from jaxsat._shapes import Polytope as Polytope
 from jaxsat._shapes import box as box
 from jaxsat._shapes import cap_hull as cap_hull
+from jaxsat._shapes import capsule as capsule
+from jaxsat._shapes import circle as circle
 from jaxsat._shapes import polygon as polygon
 from jaxsat._shapes import polyhedron as polyhedron
 from jaxsat._shapes import regular_polygon as regular_polygon
+from jaxsat._shapes import rounded as rounded
+from jaxsat._shapes import sphere as sphere
 from jaxsat._shapes import stack as stack
 from jaxsat._smoothing import smoothing_error_bound as smoothing_error_bound
 
@@ -52,6 +56,8 @@ __all__ = [
     "box",
     "broad_phase",
     "cap_hull",
+    "capsule",
+    "circle",
     "closest_points",
     "collide",
     "compound",
@@ -69,8 +75,10 @@ __all__ = [
     "query_batch",
     "query_pairs",
     "regular_polygon",
+    "rounded",
     "signed_distance",
     "smoothing_error_bound",
+    "sphere",
     "stack",
     "stack_compounds",
     "world_aabbs",

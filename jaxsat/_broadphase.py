@@ -57,7 +57,7 @@ def world_aabbs(shapes: Polytope, poses: Pose) -> tuple[jax.Array, jax.Array]:
 
     Returns:
       (low, high), each (..., D): the exact AABBs of the posed vertices (padding repeats a
-      real vertex, so it never widens a box).
+      real vertex, so it never widens a box), grown by the radius of rounded shapes.
     """
     if not isinstance(shapes, Polytope) or not isinstance(poses, Pose):
         raise TypeError("world_aabbs takes a jaxsat.Polytope and a jaxsat.Pose")
@@ -70,7 +70,11 @@ def world_aabbs(shapes: Polytope, poses: Pose) -> tuple[jax.Array, jax.Array]:
     world = jnp.stack([sum(rotation[..., None, r, k] * shapes.vertices[..., k]
                            for k in range(shapes.dim)) for r in range(shapes.dim)], axis=-1)
     world = world + translation[..., None, :]
-    return world.min(axis=-2), world.max(axis=-2)
+    low, high = world.min(axis=-2), world.max(axis=-2)
+    if shapes.radius is None:
+        return low, high
+    radius = shapes.radius[..., None]
+    return low - radius, high + radius
 
 
 def _forward_offsets(dim: int) -> np.ndarray:

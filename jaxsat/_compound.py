@@ -26,7 +26,7 @@ from jaxsat._decompose import decompose
 from jaxsat._kernels import where
 from jaxsat._pair import check_one_pair, compiled_query
 from jaxsat._poses import Pose
-from jaxsat._sat import intersects, penetration
+from jaxsat._queries import intersects, penetration
 from jaxsat._shapes import Polytope
 
 __all__ = ["Compound", "CompoundPenetration", "compound", "concave_polygon", "stack_compounds",
@@ -88,6 +88,7 @@ def _as_piece(piece, index: int, max_vertices: int | None) -> Polytope:
     if isinstance(piece, Polytope):
         if piece.batch_shape:
             raise ValueError(f"piece {index} is a batched Polytope; pass unbatched pieces")
+        shapes.require_sharp(piece, f"piece {index}", "compound")
         return piece
     if isinstance(piece, Compound):
         raise TypeError(f"piece {index} is a Compound; pass its convex pieces instead")
@@ -194,6 +195,7 @@ def _as_compound(shape, name: str) -> Compound:
     if isinstance(shape, Compound):
         return shape
     if isinstance(shape, Polytope):
+        shapes.require_sharp(shape, name, "a compound query")
         # Plain indexing and a NumPy mask: no eager JAX op for concrete inputs.
         pieces = jax.tree.map(lambda leaf: leaf[None], shape)
         return Compound(pieces=pieces, piece_mask=np.ones(shape.batch_shape + (1,), bool))

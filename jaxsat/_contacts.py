@@ -44,7 +44,7 @@ from jaxsat._kernels import (
 from jaxsat._pair import PairFrame, check_pair, compiled_query, pair_frame
 from jaxsat._poses import Pose
 from jaxsat._sat import sat_search
-from jaxsat._shapes import Polytope
+from jaxsat._shapes import Polytope, require_sharp
 
 __all__ = ["Contacts", "contacts"]
 
@@ -137,6 +137,8 @@ class _Candidates(NamedTuple):
 
 def _check_contacts(a, pose_a, b, pose_b, *, margin=0.0) -> None:
     check_pair(a, pose_a, b, pose_b)
+    require_sharp(a, "a", "contacts")
+    require_sharp(b, "b", "contacts")
     _check_margin(margin)
 
 

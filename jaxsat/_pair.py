@@ -93,6 +93,22 @@ class PairFrame:
     def dtype(self):
         return self.a.vertices.dtype
 
+    @property
+    def is_rounded(self) -> bool:
+        """Static: either shape carries a radius (the query then measures the cores' signed
+        distance and subtracts the radii)."""
+        return self.a.is_rounded or self.b.is_rounded
+
+    @property
+    def radius_a(self) -> jax.Array:
+        """() float: a's radius (0 for a sharp shape)."""
+        return jnp.zeros((), self.dtype) if self.a.radius is None else self.a.radius
+
+    @property
+    def radius_b(self) -> jax.Array:
+        """() float: b's radius (0 for a sharp shape)."""
+        return jnp.zeros((), self.dtype) if self.b.radius is None else self.b.radius
+
     def to_world(self, points):
         """(..., D) points of a's frame in world coordinates."""
         return rotate(self.pose_a.rotation, points) + self.pose_a.translation

@@ -1,4 +1,5 @@
-"""Exact Separating Axis Theorem queries for one pair of convex shapes.
+"""The exact Separating Axis Theorem search for one prepared pair of convex shapes (the public
+`penetration` and `intersects` that stand on it are in `_queries`).
 
 Conventions. For a unit axis u, moving b by s(u) * u makes the two shapes' projections on u
 just touch, where s(u) = max_a(u . a) - min_b(u . b). The penetration depth is min_u s(u):
@@ -16,7 +17,6 @@ benchmarks/README.md, "Performance to the limit", for why they are written as th
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from typing import NamedTuple
 
@@ -32,24 +32,11 @@ from jaxsat._kernels import (
     safe_normalize,
     where,
 )
-from jaxsat._pair import PairFrame, cast_pair, check_pair, compiled_query, pair_frame
-from jaxsat._poses import Pose
+from jaxsat._pair import PairFrame
 from jaxsat._shapes import Polytope
 
-__all__ = ["EDGE_PAIR", "FACE_OF_A", "FACE_OF_B", "Candidates", "GaussMapAxes", "Penetration",
-           "ProjectedAxes", "SatAxis", "candidates", "intersects", "penetration",
-           "sat_runner_up", "sat_search"]
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class Penetration:
-    """Result of `penetration` for one pair (fields gain leading axes under `vmap`)."""
-
-    depth: jax.Array
-    """() float: minimum translation distance if > 0; minus the largest axis gap if <= 0."""
-    normal: jax.Array
-    """(D,) float: unit world-frame axis from a towards b; moving b by depth * normal separates."""
+__all__ = ["EDGE_PAIR", "FACE_OF_A", "FACE_OF_B", "Candidates", "GaussMapAxes", "ProjectedAxes",
+           "SatAxis", "candidates", "min_candidate_depth", "sat_runner_up", "sat_search"]
 
 
 class ProjectedAxes(NamedTuple):
@@ -312,39 +299,6 @@ def sat_runner_up(frame: PairFrame, min_angle) -> jax.Array:
     return where(jnp.isfinite(best_depth), best_axis, winner)
 
 
-def _check_penetration(a, pose_a, b, pose_b, *, prune=True) -> None:
-    check_pair(a, pose_a, b, pose_b)
-    if not isinstance(prune, bool):
-        raise TypeError(f"prune must be True or False, got {prune!r}")
-
-
-@compiled_query(_check_penetration, static_argnames=("prune",))
-def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
-                prune: bool = True) -> Penetration:
-    """Exact SAT penetration depth and axis for one pair of convex shapes.
-
-    Args:
-      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches).
-      pose_a, pose_b: their poses.
-      prune: in 3D, skip the edge pairs whose arcs do not cross on the Gauss map (they do not
-        bound the Minkowski difference, so they never give the answer). False tests every
-        pair of edge directions, as a textbook SAT does: the same result for overlapping
-        shapes, only slower (see benchmarks/scene.py); for separated shapes the extra axes
-        may find a larger gap, still within the bounds stated below. Static.
-
-    Returns:
-      Penetration(depth, normal) in the common dtype of the inputs. depth > 0: the shapes
-      overlap and depth is the exact minimum translation distance; moving b by depth * normal
-      leaves them touching. depth <= 0: separated, and -depth is the largest gap found on a
-      candidate axis: at least the largest gap over the facet normals of the Minkowski
-      difference and at most the distance between the shapes. normal is a world-frame unit
-      vector pointing from a towards b.
-    """
-    frame = pair_frame(a, pose_a, b, pose_b)
-    found = sat_search(frame, prune)
-    return Penetration(depth=found.depth, normal=frame.direction_to_world(found.axis))
-
-
 def _support(axis, points):
     """max over points of axis . point, read at its argmax so that the gradient reaches one
     point with weight 1. A chain of jnp.maximum spreads it over ties, and under jit XLA may
@@ -354,46 +308,9 @@ def _support(axis, points):
     return projections[jnp.argmax(projections)]
 
 
-def _world_aabb(shape: Polytope, pose: Pose) -> tuple[jax.Array, jax.Array]:
-    world = pose.apply(shape.vertices)
-    return world.min(axis=0), world.max(axis=0)
-
-
-def _min_depth(a, pose_a, b, pose_b) -> jax.Array:
-    found = candidates(pair_frame(a, pose_a, b, pose_b))
+def min_candidate_depth(frame: PairFrame) -> jax.Array:
+    """() float: the smallest depth over every candidate of a prepared pair, as each group
+    measures it (>= 0 iff no candidate separates the shapes)."""
+    found = candidates(frame)
     groups = [found.projected] + ([] if found.gauss_map is None else [found.gauss_map])
     return functools.reduce(jnp.minimum, [jnp.min(group.depths) for group in groups])
-
-
-@compiled_query(check_pair)
-def intersects(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> jax.Array:
-    """True where the two shapes overlap or touch (penetration depth >= 0).
-
-    A single call compares the world AABBs first and skips the SAT when they are disjoint.
-    Under jax.vmap that skip would not pay (both branches of a batched cond run), so the
-    batched query goes straight to the SAT minimum; the answer is the same either way.
-    """
-    a, pose_a, b, pose_b = cast_pair(a, pose_a, b, pose_b)
-    # A boolean has no derivative; stopping gradients here keeps `custom_vmap` (which has no
-    # reverse-mode rule) out of any gradient of a function that merely calls `intersects`.
-    return _intersects_pair(*jax.lax.stop_gradient((a, pose_a, b, pose_b)))
-
-
-def _sat_intersects(a, pose_a, b, pose_b) -> jax.Array:
-    return _min_depth(a, pose_a, b, pose_b) >= 0
-
-
-@jax.custom_batching.custom_vmap
-def _intersects_pair(a, pose_a, b, pose_b) -> jax.Array:
-    low_a, high_a = _world_aabb(a, pose_a)
-    low_b, high_b = _world_aabb(b, pose_b)
-    boxes_overlap = jnp.all((low_a <= high_b) & (low_b <= high_a))
-    return jax.lax.cond(boxes_overlap, _sat_intersects, lambda *_: jnp.array(False),
-                        a, pose_a, b, pose_b)
-
-
-@_intersects_pair.def_vmap
-def _intersects_batched(axis_size, in_batched, a, pose_a, b, pose_b):
-    del axis_size  # the batch size comes with the batched arguments
-    in_axes = jax.tree.map(lambda batched: 0 if batched else None, tuple(in_batched))
-    return jax.vmap(_sat_intersects, in_axes=in_axes)(a, pose_a, b, pose_b), True

@@ -12,10 +12,10 @@ import functools
 
 import jax
 
-from jaxsat import _batching, _contacts, _sat
+from jaxsat import _batching, _contacts, _queries
 from jaxsat._broadphase import broad_phase, world_aabbs
 from jaxsat._poses import Pose
-from jaxsat._shapes import Polytope
+from jaxsat._shapes import Polytope, require_sharp
 
 __all__ = ["SceneCollisions", "collide"]
 
@@ -58,17 +58,19 @@ def _check_scene(shapes, poses, level):
                          f"got batch shape {shapes.batch_shape}")
     if level not in LEVELS:
         raise ValueError(f"level must be one of {LEVELS}, got {level!r}")
+    if level == "contacts":
+        require_sharp(shapes, "shapes", 'collide(..., level="contacts")')
 
 
 def _penetration_and_contacts(a, pose_a, b, pose_b):
     # Both share the SAT; under jit XLA computes it once.
-    return (_sat.penetration(a, pose_a, b, pose_b),
+    return (_queries.penetration(a, pose_a, b, pose_b),
             _contacts.contacts(a, pose_a, b, pose_b))
 
 
 def _narrow_phase(level, shapes, poses, pairs, chunk_size, devices):
     """Per-slot results at `level` for the candidate pairs."""
-    query = {"intersects": _sat.intersects, "penetration": _sat.penetration,
+    query = {"intersects": _queries.intersects, "penetration": _queries.penetration,
              "contacts": _penetration_and_contacts}[level]
     return _batching.query_pairs(query, shapes, poses, pairs, chunk_size=chunk_size,
                                  devices=devices)

@@ -13,9 +13,9 @@ import numpy as np
 from jaxsat import _geometry as geometry
 from jaxsat._kernels import where
 
-__all__ = ["CappedHull", "Polytope", "SizeClass", "box", "cap_hull", "float_dtype",
-           "pad_and_stack", "polygon", "polyhedron", "regular_polygon", "ring_neighbours",
-           "size_class_for", "stack"]
+__all__ = ["CappedHull", "Polytope", "SizeClass", "box", "cap_hull", "capsule", "circle",
+           "float_dtype", "pad_and_stack", "polygon", "polyhedron", "regular_polygon",
+           "require_sharp", "ring_neighbours", "rounded", "size_class_for", "sphere", "stack"]
 
 
 class SizeClass(NamedTuple):
@@ -59,6 +59,13 @@ class Polytope:
     vertex i + 1 of the ring of `num_real_vertices` (`ring_neighbours`); because padding
     repeats vertex 0, rolling the padded array by one also closes the ring, with zero-length
     edges at the padding. In 3D `edge_endpoints` lists the hull edges.
+
+    Rounded shapes (`radius` not None) may have a degenerate core: one point (`sphere`,
+    `circle`) or one segment (`capsule`). Such a core carries, as its face normals, axes that
+    complete the SAT's candidates without being faces (any axis gives a valid bound): the
+    coordinate axes for a point; for a segment its direction and the normals across it. A
+    3D segment's hull edges are four copies of the segment, one per quarter of its Gauss-map
+    circle (the directions across it), so that the Gauss-map SAT sees it like a thin prism.
     """
 
     vertices: jax.Array
@@ -81,6 +88,12 @@ class Polytope:
     """(K, 2, D) float: outward unit normals of the two faces meeting at each hull edge."""
     hull_edge_mask: jax.Array
     """(K,) bool: True for real hull edges."""
+    radius: jax.Array | None = None
+    """() float, or None: the rounding radius r >= 0. A rounded shape is the set of points
+    within r of its core, the polytope the other fields describe (`sphere`, `capsule`,
+    `rounded`); None for a sharp polytope. Whether a shape is rounded is static (None or an
+    array), so that sharp pairs keep the SAT kernels and rounded pairs take the distance
+    kernels, each compiled for the kinds it sees."""
 
     @property
     def dim(self) -> int:
@@ -112,9 +125,23 @@ class Polytope:
         return self.dim == 3 and self.edge_directions.shape[-2] <= 3
 
     @property
+    def is_rounded(self) -> bool:
+        """Static: the shape carries a radius (it may be 0)."""
+        return self.radius is not None
+
+    @property
     def num_real_vertices(self) -> jax.Array:
         """() int32 (batch shape): how many vertices are real (traced)."""
         return jnp.sum(self.vertex_mask, axis=-1, dtype=jnp.int32)
+
+
+def require_sharp(shape, name: str, query: str) -> None:
+    """Raise TypeError if `shape` is rounded: for the queries that do not take rounded shapes
+    yet."""
+    if getattr(shape, "radius", None) is not None:
+        raise TypeError(f"{query} does not take rounded shapes (spheres, capsules, `rounded`) "
+                        f"yet; {name} has a radius. signed_distance, closest_points, "
+                        "penetration and intersects do")
 
 
 def ring_neighbours(index, count):
@@ -257,6 +284,101 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None,
                   float_dtype(np.asarray(points), dtype))
 
 
+def _as_radius(radius, name: str = "radius") -> float:
+    if isinstance(radius, (bool, np.bool_)) or not isinstance(
+            radius, (int, float, np.number, np.ndarray, jax.Array)):
+        raise TypeError(f"{name} must be a number, got {type(radius).__name__}")
+    value = np.asarray(radius)
+    if value.shape != () or not np.issubdtype(value.dtype, np.number):
+        raise TypeError(f"{name} must be a scalar number, got shape {value.shape}")
+    if not (np.isfinite(value) and value >= 0):
+        raise ValueError(f"{name} must be finite and >= 0, got {radius!r}")
+    return float(value)
+
+
+def _core(vertices: np.ndarray, axes: np.ndarray, quarters: np.ndarray, dtype) -> Polytope:
+    """A degenerate core: 1 point or 2 (a segment); `axes` its SAT face normals; in 3D,
+    `quarters` (4, 2, 3) the face-normal pairs of a segment's hull edges (empty for a point)."""
+    dim = vertices.shape[1]
+    segment = vertices[1:] - vertices[:1]
+    length = np.linalg.norm(segment)
+    # A zero-length segment has no direction (a zero row gives no SAT axis).
+    direction = segment / length if length > 0 else np.zeros((0, dim))
+    if dim == 2:
+        return _build(vertices, axes, np.zeros((0, 2)), np.zeros((0, 2), np.int64),
+                      np.zeros((0, 2, 2)), SizeClass(len(vertices), len(axes), 0, 0), dtype)
+    endpoints = np.zeros((len(quarters), 2), np.int64)
+    endpoints[:, 1] = 1
+    sizes = SizeClass(len(vertices), len(axes), 1, max(len(quarters), 1))
+    return _build(vertices, axes, direction, endpoints, quarters, sizes, dtype)
+
+
+def sphere(radius, *, dtype=None) -> Polytope:
+    """A 3D ball of `radius` about the origin (a rounded shape whose core is one point).
+
+    Raises:
+      TypeError: a radius that is not a scalar number.
+      ValueError: a radius that is not finite and >= 0.
+    """
+    r = _as_radius(radius)
+    dtype = float_dtype(np.asarray(radius), dtype)
+    core = _core(np.zeros((1, 3)), np.eye(3), np.zeros((0, 2, 3)), dtype)
+    return dataclasses.replace(core, radius=jnp.asarray(r, dtype))
+
+
+def circle(radius, *, dtype=None) -> Polytope:
+    """A 2D disc of `radius` about the origin (a rounded shape whose core is one point).
+
+    Raises: as `sphere`.
+    """
+    r = _as_radius(radius)
+    dtype = float_dtype(np.asarray(radius), dtype)
+    core = _core(np.zeros((1, 2)), np.eye(2), np.zeros((0, 2, 2)), dtype)
+    return dataclasses.replace(core, radius=jnp.asarray(r, dtype))
+
+
+def capsule(half_length, radius, dim: int = 3, *, dtype=None) -> Polytope:
+    """A capsule: the points within `radius` of the segment from -half_length to +half_length
+    along local z (3D) or local x (2D, a stadium).
+
+    Raises:
+      TypeError: a half_length or radius that is not a scalar number.
+      ValueError: a half_length or radius that is not finite and >= 0, or a dim other than
+        2 or 3.
+    """
+    half, r = _as_radius(half_length, "half_length"), _as_radius(radius)
+    if dim not in (2, 3) or isinstance(dim, bool):
+        raise ValueError(f"dim must be 2 or 3, got {dim!r}")
+    dtype = float_dtype(np.zeros((), np.result_type(np.asarray(half_length), np.asarray(radius))),
+                        dtype)
+    if dim == 2:
+        core = _core(np.array([[-half, 0.0], [half, 0.0]]), np.array([[0.0, 1.0], [1.0, 0.0]]),
+                     np.zeros((0, 2, 2)), dtype)
+    else:
+        x, y = np.eye(3)[0], np.eye(3)[1]
+        # Consecutive pairs (n1, n2) with n2 x n1 = -z: each hull edge runs along the segment.
+        quarters = np.array([[x, y], [y, -x], [-x, -y], [-y, x]])
+        core = _core(np.array([[0.0, 0.0, -half], [0.0, 0.0, half]]), np.eye(3), quarters, dtype)
+    return dataclasses.replace(core, radius=jnp.asarray(r, dtype))
+
+
+def rounded(shape: Polytope, radius) -> Polytope:
+    """`shape` with every point within `radius` of it added: a rounded box or polygon (on a
+    rounded shape, the radii add).
+
+    Raises:
+      TypeError: shape is not an unbatched Polytope, or a radius that is not a scalar number.
+      ValueError: a radius that is not finite and >= 0.
+    """
+    if not isinstance(shape, Polytope):
+        raise TypeError(f"shape must be a jaxsat.Polytope, got {type(shape).__name__}")
+    if shape.batch_shape:
+        raise TypeError(f"shape must be unbatched, got batch shape {shape.batch_shape}")
+    r = _as_radius(radius)
+    total = r if shape.radius is None else r + float(shape.radius)
+    return dataclasses.replace(shape, radius=jnp.asarray(total, shape.dtype))
+
+
 class CappedHull(NamedTuple):
     """A convex polytope with at most a given number of vertices that contains a point cloud's
     hull (`cap_hull`), and how much larger it is."""
@@ -373,9 +495,14 @@ def pad_and_stack(shapes: Sequence[Polytope], sizes: SizeClass | None = None,
         sizes = SizeClass(*(max(column) for column in
                             zip(*(shape.size_class for shape in shapes), strict=True)))
     padded = [_padded_fields(shape, sizes) for shape in shapes]
+    if any(shape.is_rounded for shape in shapes):
+        # Sharp shapes join a rounded batch with radius 0 (the same shape).
+        dtype = np.asarray(shapes[0].vertices).dtype
+        for fields, shape in zip(padded, shapes, strict=True):
+            fields["radius"] = np.asarray(0.0 if shape.radius is None else shape.radius, dtype)
     padded += [padded[0]] * ((length or len(padded)) - len(padded))
     return Polytope(**{name: jnp.asarray(np.stack([fields[name] for fields in padded]))
-                       for name in _FIELD_SIZES})
+                       for name in padded[0]})
 
 
 def stack(shapes: Sequence[Polytope]) -> Polytope:
@@ -383,7 +510,7 @@ def stack(shapes: Sequence[Polytope]) -> Polytope:
 
     Returns:
       A Polytope whose fields have a leading batch axis of length len(shapes), ready for
-      `jax.vmap`.
+      `jax.vmap`. If any shape is rounded, so is the batch (sharp entries get radius 0).
 
     Raises:
       TypeError: an entry that is not a Polytope.

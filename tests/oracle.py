@@ -142,3 +142,32 @@ def inside_polygon(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         crossing_x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
     return np.sum(straddles & (x < crossing_x), axis=1) % 2 == 1
+
+
+def segment_distance(p0, p1, q0, q1) -> float:
+    """Euclidean distance between segments [p0, p1] and [q0, q1] (2D or 3D; a segment may be a
+    point): the minimum of |p0 + s u - q0 - t v|^2 over the unit square, a convex quadratic,
+    taken over its stationary point inside the square (if any) and each side's clamped
+    minimum, which together contain the minimiser."""
+    p0, p1, q0, q1 = (np.asarray(x, np.float64) for x in (p0, p1, q0, q1))
+    u, v, w = p1 - p0, q1 - q0, p0 - q0
+    a, b, c, d, e = u @ u, u @ v, v @ v, u @ w, v @ w
+
+    def squared(s, t):
+        gap = w + s * u - t * v
+        return float(gap @ gap)
+
+    def clamped(numerator, denominator):
+        return float(np.clip(numerator / denominator, 0.0, 1.0)) if denominator > 0 else 0.0
+
+    candidates = []
+    for s in (0.0, 1.0):  # t minimising |w + s u - t v|^2
+        candidates.append((s, clamped(e + s * b, c)))
+    for t in (0.0, 1.0):  # s minimising |w - t v + s u|^2
+        candidates.append((clamped(t * b - d, a), t))
+    determinant = a * c - b * b
+    if determinant > 1e-14 * max(a * c, 1e-300):
+        s, t = (b * e - c * d) / determinant, (a * e - b * d) / determinant
+        if 0.0 <= s <= 1.0 and 0.0 <= t <= 1.0:
+            candidates.append((s, t))
+    return float(np.sqrt(min(squared(s, t) for s, t in candidates)))

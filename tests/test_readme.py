@@ -40,6 +40,18 @@ def test_readme_signed_distance_example_runs():
     assert lines[5] == "True"
 
 
+@pytest.mark.slow
+def test_readme_rounded_example_runs():
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
+    assert len(blocks) >= 3, "README.md has no rounded-shapes example"
+    result = subprocess.run([sys.executable, "-c", blocks[2]], capture_output=True, text=True,
+                            timeout=300, check=False)
+    assert result.returncode == 0, result.stderr
+    distance, depth, overlap = result.stdout.split()
+    assert abs(float(distance) - 1.25) < 1e-6 and abs(float(depth) - 0.1) < 1e-6
+    assert overlap == "True"
+
+
 def test_quickstart_commands():
     text = README.read_text()
     assert 'pip install -e ".[dev]" && python -m jaxsat demo' in text
@@ -49,8 +61,8 @@ def test_quickstart_commands():
 @pytest.mark.slow
 def test_readme_scene_example_runs():
     blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
-    assert len(blocks) >= 3, "README.md has no scene example"
-    result = subprocess.run([sys.executable, "-c", blocks[2]], capture_output=True, text=True,
+    assert len(blocks) >= 4, "README.md has no scene example"
+    result = subprocess.run([sys.executable, "-c", blocks[3]], capture_output=True, text=True,
                             timeout=300, check=False)
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()

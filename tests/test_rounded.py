@@ -1,0 +1,441 @@
+"""Rounded shapes (spheres, circles, capsules, rounded polytopes) against independent oracles.
+
+A rounded shape is the set of points within r of its core. The references: closed forms where
+both cores are points or segments (`oracle.segment_distance`), and otherwise the Minkowski
+difference oracle of the cores (full-dimensional as soon as one core is), minus the radii.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import harness
+import jax
+import jax.numpy as jnp
+import numpy as np
+import oracle
+import pytest
+from scipy.spatial import ConvexHull
+
+import jaxsat
+
+COUNT = 2 * harness.BATCH
+
+
+DEGENERATE_KINDS = ("sphere", "capsule", "circle", "capsule2")
+"""Kinds whose core is a point or a segment."""
+
+POOL_KINDS = {
+    "box-class": ("sphere", "capsule", "rounded_box", "box"),
+    "hull-class": ("sphere", "capsule", "rounded_hull"),
+    "polygon-class": ("circle", "capsule2", "rounded_polygon", "polygon"),
+}
+"""Mixed pools, each stacked into one size class: the box class keeps the parallelepiped SAT
+(edge pairs by projection), the hull class the Gauss map (a segment core by its four quarter
+arcs); every query compiles once per pool pair and dtype."""
+
+
+@dataclasses.dataclass
+class RoundedPool:
+    """Shapes of mixed kinds padded to one size class: stacked, with their kinds, their cores'
+    raw points and their radii (rounded to the dtype; 0 for sharp shapes)."""
+
+    kinds: list[str]
+    pool: harness.Pool
+    radii: np.ndarray
+
+    def degenerate(self, index: int) -> bool:
+        return self.kinds[index] in DEGENERATE_KINDS
+
+
+def _kind_shape(kind: str, rng: np.random.Generator, dtype):
+    """(shape, core points) of one random shape of `kind`."""
+    radius = float(rng.uniform(0.05, 0.6))
+    if kind in ("sphere", "circle"):
+        dim = 3 if kind == "sphere" else 2
+        make = jaxsat.sphere if dim == 3 else jaxsat.circle
+        return make(np.asarray(radius, dtype)), np.zeros((1, dim))
+    if kind in ("capsule", "capsule2"):
+        dim = 3 if kind == "capsule" else 2
+        half = harness.f32(rng.uniform(0.0, 1.0)) if rng.uniform() > 0.1 else 0.0
+        ends = np.zeros((2, dim))
+        ends[:, dim - 1 if dim == 3 else 0] = [-half, half]
+        shape = jaxsat.capsule(np.asarray(half, dtype), np.asarray(radius, dtype), dim)
+        return shape, ends
+    base = {"rounded_box": "box", "box": "box", "rounded_hull": "hull8",
+            "rounded_polygon": "poly8", "polygon": "poly8"}[kind]
+    raw, factory = harness.GENERATORS[base][1](rng, 1.0)
+    sharp = factory(dtype)
+    return (sharp if kind in ("box", "polygon") else
+            jaxsat.rounded(sharp, np.asarray(radius, dtype))), raw
+
+
+@functools.cache
+def rounded_pool(name: str, dtype, per_kind: int = 3) -> RoundedPool:
+    rng = np.random.default_rng([7, len(name)])
+    kinds = [kind for kind in POOL_KINDS[name] for _ in range(per_kind)]
+    shapes, points = zip(*(_kind_shape(kind, rng, dtype) for kind in kinds), strict=True)
+    stacked = jaxsat.stack(list(shapes))
+    points = [np.asarray(p, np.float64).astype(dtype).astype(np.float64) for p in points]
+    return RoundedPool(kinds, harness.Pool(stacked.dim, points, stacked),
+                       np.asarray(stacked.radius, np.float64))
+
+
+def core_signed_distance(world_a, world_b, degenerate_a, degenerate_b) -> float:
+    """The cores' exact signed distance: the Minkowski difference oracle where that difference
+    is full-dimensional, else (two points or segments in 3D, parallel segments or a point and
+    a segment in 2D: a flat difference, which touches the origin at most) the closed form of
+    the distance between the segments."""
+    difference = oracle.minkowski_difference(world_a, world_b)
+    spread = np.linalg.svd(difference - difference.mean(axis=0), compute_uv=False)
+    flat = spread[-1] <= 1e-9 * max(spread[0], 1e-300)
+    if degenerate_a and degenerate_b and flat:
+        ends = lambda w: (w[0], w[-1])  # noqa: E731
+        return oracle.segment_distance(*ends(world_a), *ends(world_b))
+    found = oracle.evaluate(world_a, world_b)
+    return found.distance if found.depth < 0 else -found.depth
+
+
+def distance_to_core(point, world_core, degenerate) -> float:
+    if degenerate:
+        return oracle.segment_distance(point, point, world_core[0], world_core[-1])
+    return oracle.distance_to_hull(ConvexHull(world_core), point)
+
+
+POOL_CASES = [pytest.param(names, dtype, id=f"{names[0]}-{names[1]}-{dtype.__name__}",
+                           marks=() if names[0] == "polygon-class" else pytest.mark.slow)
+              for names in [("box-class", "box-class"), ("hull-class", "box-class"),
+                            ("polygon-class", "polygon-class")]
+              for dtype in harness.DTYPES
+              # float32 runs on the box class, which covers the float32 paths new to rounded
+              # shapes (degenerate cores); hulls and polygons take the sharp shapes' paths
+              if names == ("box-class", "box-class") or dtype == np.float64]
+
+
+@dataclasses.dataclass
+class RoundedPairs:
+    pool_a: RoundedPool
+    pool_b: RoundedPool
+    pairs: harness.Pairs
+    expected: np.ndarray
+    """(N,) the oracle signed distance of each pair."""
+    size: np.ndarray
+    """(N,) the larger of the two shapes' bounding radii (rounded) about their centroids."""
+
+
+@functools.cache
+def rounded_pairs(name_a: str, name_b: str, dtype) -> RoundedPairs:
+    pool_a, pool_b = rounded_pool(name_a, dtype), rounded_pool(name_b, dtype)
+    rng = np.random.default_rng([3, len(name_a), len(name_b)])
+    pairs = harness.random_pairs(pool_a.pool, pool_b.pool, COUNT, rng, dtype,
+                                 distance=(0.0, 3.0))
+    world_a, world_b = harness.world_points(pairs)
+    expected, size = [], []
+    for i, (index_a, index_b) in enumerate(zip(pairs.index_a, pairs.index_b, strict=True)):
+        ra, rb = pool_a.radii[index_a], pool_b.radii[index_b]
+        core = core_signed_distance(world_a[i], world_b[i], pool_a.degenerate(index_a),
+                                    pool_b.degenerate(index_b))
+        expected.append(core - ra - rb)
+        size.append(max(oracle.bounding_radius(world_a[i]) + ra,
+                        oracle.bounding_radius(world_b[i]) + rb))
+    return RoundedPairs(pool_a, pool_b, pairs, np.array(expected), np.array(size))
+
+
+SMOOTHING = 0.02
+
+
+def _query(a, params_a, b, params_b):
+    """closest_points, the exact and smooth signed distance with their gradients in b's
+    translation and radius, and in 2D penetration and intersects: one kernel per pool pair
+    and dtype. (Rounded penetration and intersects read the same exact distance as
+    closest_points; 3D kernels leave them out to halve the compile, and the degenerate
+    catalogue checks them in 3D.)"""
+    pose_a, pose_b = harness.make_pose(params_a), harness.make_pose(params_b)
+
+    def of(translation_b, radius_b, smoothing):
+        moved = dataclasses.replace(b, radius=radius_b)
+        params = (translation_b[0], translation_b[1], params_b[2]) if a.dim == 2 else (
+            translation_b, params_b[1])
+        return jaxsat.signed_distance(a, pose_a, moved, harness.make_pose(params),
+                                      smoothing=smoothing)
+
+    translation = jnp.stack([params_b[0], params_b[1]]) if a.dim == 2 else params_b[0]
+    signed = tuple(jax.value_and_grad(of, argnums=(0, 1))(translation, b.radius, smoothing)
+                   for smoothing in (None, SMOOTHING))
+    found = jaxsat.closest_points(a, pose_a, b, pose_b)
+    if a.dim == 3:
+        return found, None, signed
+    penetration = jaxsat.penetration(a, pose_a, b, pose_b)
+    overlap = jaxsat.intersects(a, pose_a, b, pose_b)
+    return found, (penetration.depth, penetration.normal, overlap), signed
+
+
+# FAST_COMPILE about halves the compile time (see harness.FAST_COMPILE for its caveat).
+_batched_query = jax.jit(jax.vmap(_query), compiler_options=harness.FAST_COMPILE)
+
+
+@pytest.mark.parametrize(("names", "dtype"), POOL_CASES)
+def test_rounded_queries_match_the_cores_oracle_minus_the_radii(names, dtype):
+    """Every query on rounded pairs (spheres, capsules, rounded and sharp polytopes, one size
+    class per pool), against the cores' oracle signed distance minus r_a + r_b:
+
+    * closest_points and signed_distance give that value; the points are on the rounded
+      surfaces (at r from the cores when apart) and q - p = distance * normal;
+    * (2D) penetration is minus the signed distance along the same normal, and intersects
+      is signed distance <= 0 wherever the value is clear of 0 by the tolerance;
+    * exact and smooth signed distance have finite gradients, unit-bounded in b's
+      translation and -1 in b's radius, and exact - c tau <= smooth <= exact with
+      c = smoothing_error_bound (a point core counts one vertex)."""
+    case = rounded_pairs(*names, dtype)
+    pairs, pool_a, pool_b = case.pairs, case.pool_a, case.pool_b
+    found, overlap_queries, signed = harness.run_batched(_batched_query, len(pairs),
+                                                         *pairs.inputs())
+    world_a, world_b = harness.world_points(pairs)
+    checked_apart = 0
+    for i in range(len(pairs)):
+        index_a, index_b = pairs.index_a[i], pairs.index_b[i]
+        ra, rb = pool_a.radii[index_a], pool_b.radii[index_b]
+        tolerance = 10 * harness.RELATIVE_TOLERANCE[dtype] * case.size[i]
+        expected = case.expected[i]
+        label = f"{pool_a.kinds[index_a]}-{pool_b.kinds[index_b]} pair {i}"
+        assert abs(found.signed_distance[i] - expected) <= tolerance, label
+        if overlap_queries is not None:
+            depth, normal, overlap = (x[i] for x in overlap_queries)
+            # Up to rounding (signed_distance's straight-through gradient term).
+            assert abs(depth + found.signed_distance[i]) <= tolerance, label
+            np.testing.assert_array_equal(normal, found.normal[i], err_msg=label)
+            if abs(expected) > tolerance:
+                assert overlap == (expected < 0), label
+        assert abs(np.linalg.norm(found.normal[i]) - 1) <= harness.UNIT_TOLERANCE[dtype], label
+        np.testing.assert_allclose(found.point_b[i] - found.point_a[i],
+                                   found.signed_distance[i] * found.normal[i], atol=tolerance,
+                                   err_msg=label)
+        if expected > tolerance:
+            checked_apart += 1
+            on_a = distance_to_core(found.point_a[i], world_a[i], pool_a.degenerate(index_a))
+            on_b = distance_to_core(found.point_b[i], world_b[i], pool_b.degenerate(index_b))
+            assert abs(on_a - ra) <= tolerance and abs(on_b - rb) <= tolerance, label
+    assert checked_apart >= len(pairs) // 8
+
+    (exact, (exact_move, exact_radius)), (smooth, (smooth_move, smooth_radius)) = signed
+    tolerance = 10 * harness.RELATIVE_TOLERANCE[dtype] * case.size
+    assert np.all(np.abs(exact - case.expected) <= tolerance)
+    a, _, b, _ = pairs.inputs()
+    bound = np.asarray(jax.vmap(jaxsat.smoothing_error_bound)(a, b))
+    for name, array in (("exact", exact), ("smooth", smooth), ("exact_move", exact_move),
+                        ("smooth_move", smooth_move)):
+        assert np.all(np.isfinite(array)), name
+    for move in (exact_move, smooth_move):
+        assert np.all(np.linalg.norm(move, axis=-1) <= 1 + 10 * harness.UNIT_TOLERANCE[dtype])
+    np.testing.assert_array_equal(exact_radius, -1.0)
+    np.testing.assert_array_equal(smooth_radius, -1.0)
+    assert np.all(smooth <= exact + tolerance)
+    assert np.all(smooth >= exact - bound * SMOOTHING - tolerance)
+
+
+def _pose(dim, translation, quaternion=(1.0, 0.0, 0.0, 0.0), dtype=np.float64):
+    """A 3D pose, or a 2D pose at angle 0 (the quaternion is then unused)."""
+    translation = np.asarray(translation, dtype)
+    if dim == 2:
+        return jaxsat.pose2(translation[0], translation[1], np.zeros((), dtype))
+    return jaxsat.pose3(translation, np.asarray(quaternion, dtype))
+
+
+_TURN_X = (np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0)
+"""A quarter turn about x: local z onto world -y."""
+DEGENERATE_CASES = {
+    # name: (shape a, translation a, shape b, translation b, quaternion b, exact signed distance)
+    "coincident-spheres": (jaxsat.sphere(0.5), (0, 0, 0), jaxsat.sphere(0.25), (0, 0, 0),
+                           (1, 0, 0, 0), -0.75),
+    "coincident-circles": (jaxsat.circle(0.5), (0, 0), jaxsat.circle(0.25), (0, 0), (1,), -0.75),
+    "sphere-at-box-centre": (jaxsat.box([1.0, 1.0, 1.0]), (0, 0, 0), jaxsat.sphere(0.5),
+                             (0, 0, 0), (1, 0, 0, 0), -1.5),
+    "point-sphere-on-box-corner": (jaxsat.box([1.0, 1.0, 1.0]), (0, 0, 0), jaxsat.sphere(0.0),
+                                   (1, 1, 1), (1, 0, 0, 0), 0.0),
+    "collinear-capsules": (jaxsat.capsule(1.0, 0.25), (0, 0, 0), jaxsat.capsule(1.0, 0.25),
+                           (0, 0, 0.5), (1, 0, 0, 0), -0.5),
+    "parallel-capsules": (jaxsat.capsule(1.0, 0.25), (0, 0, 0), jaxsat.capsule(1.0, 0.25),
+                          (1, 0, 0.5), (1, 0, 0, 0), 0.5),
+    "crossing-capsules": (jaxsat.capsule(1.0, 0.25), (0, 0, 0), jaxsat.capsule(1.0, 0.25),
+                          (0, 0, 0), _TURN_X, -0.5),
+    "end-to-end-capsules": (jaxsat.capsule(1.0, 0.25), (0, 0, 0), jaxsat.capsule(1.0, 0.25),
+                            (0, 0, 2.5), (1, 0, 0, 0), 0.0),
+    "zero-length-capsule-on-box-edge": (jaxsat.box([1.0, 1.0, 1.0]), (0, 0, 0),
+                                        jaxsat.capsule(0.0, 0.1), (1, 1, 0), (1, 0, 0, 0), -0.1),
+    "capsule-along-box-face": (jaxsat.box([1.0, 1.0, 1.0]), (0, 0, 0), jaxsat.capsule(0.5, 0.1),
+                               (1.1, 0, 0), (1, 0, 0, 0), 0.0),
+    "collinear-2d-capsules": (jaxsat.capsule(1.0, 0.25, dim=2), (0, 0),
+                              jaxsat.capsule(1.0, 0.25, dim=2), (0.5, 0), (1,), -0.5),
+    "circle-at-square-centre": (jaxsat.box([1.0, 1.0]), (0, 0), jaxsat.circle(0.5), (0, 0), (1,),
+                                -1.5),
+}
+
+
+def _degenerate_query(a, pose_a, b, pose_b):
+    found = jaxsat.closest_points(a, pose_a, b, pose_b)
+    depth = (jaxsat.penetration(a, pose_a, b, pose_b).depth,
+             jaxsat.intersects(a, pose_a, b, pose_b))
+    gradients = [jax.grad(lambda *args, smoothing=smoothing: jaxsat.signed_distance(
+        *args, smoothing=smoothing), argnums=(0, 1, 2, 3), allow_int=True)(a, pose_a, b, pose_b)
+        for smoothing in (None, 0.05)]
+    return found, depth, gradients
+
+
+_batched_degenerate_query = jax.jit(jax.vmap(_degenerate_query),
+                                    compiler_options=harness.FAST_COMPILE)
+
+
+EXACT_TOUCHES = ("point-sphere-on-box-corner", "end-to-end-capsules")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dtype", harness.DTYPES, ids=harness.DTYPE_IDS)
+def test_degenerate_rounded_pairs_are_finite_and_exact(dim, dtype):
+    """Coincident cores, cores inside a box at a many-way tie, collinear, parallel, crossing
+    and end-to-end segments, zero radius and zero length (all cases of one dimension in one
+    batch): the value by hand, a unit normal, penetration = minus the value, finite exact and
+    smooth gradients in every input, unit-bounded in b's translation; intersects by the
+    sign."""
+    names = [name for name, case in DEGENERATE_CASES.items() if case[0].dim == dim]
+    cast = lambda shape: jax.tree.map(  # noqa: E731
+        lambda leaf: leaf.astype(dtype) if jnp.issubdtype(leaf.dtype, jnp.floating) else leaf,
+        shape)
+    cases = [DEGENERATE_CASES[name] for name in names]
+    a = jaxsat.stack([cast(case[0]) for case in cases])
+    b = jaxsat.stack([cast(case[2]) for case in cases])
+    poses_a = [_pose(dim, case[1], dtype=dtype) for case in cases]
+    poses_b = [_pose(dim, case[3], case[4], dtype=dtype) for case in cases]
+    stack_poses = lambda poses: jax.tree.map(lambda *leaves: jnp.stack(leaves), *poses)  # noqa: E731
+    found, depth, gradients = _batched_degenerate_query(a, stack_poses(poses_a), b,
+                                                        stack_poses(poses_b))
+    tolerance = 10 * harness.RELATIVE_TOLERANCE[dtype] * 3
+    for i, name in enumerate(names):
+        assert abs(float(found.signed_distance[i]) - cases[i][5]) <= tolerance, name
+        assert abs(np.linalg.norm(found.normal[i]) - 1) <= harness.UNIT_TOLERANCE[dtype], name
+        assert abs(float(depth[0][i]) + float(found.signed_distance[i])) <= tolerance, name
+        # Touching cases count as overlapping where the touch is exact in binary (a corner,
+        # segment ends); the others by their sign.
+        if cases[i][5] != 0 or name in EXACT_TOUCHES:
+            assert bool(depth[1][i]) == (cases[i][5] <= 0), name
+    for smoothing, gradient in zip((None, 0.05), gradients, strict=True):
+        for leaf in jax.tree.leaves(gradient):
+            if jnp.issubdtype(leaf.dtype, jnp.floating):
+                bad = ~np.all(np.isfinite(np.asarray(leaf)).reshape(len(names), -1), axis=1)
+                failing = [n for n, x in zip(names, bad, strict=True) if x]
+                assert not failing, (smoothing, failing)
+        move = np.linalg.norm(np.asarray(gradient[3].translation), axis=-1)
+        assert np.all(move <= 1 + 10 * harness.UNIT_TOLERANCE[dtype]), (smoothing, move)
+
+
+def test_unpadded_point_and_segment_cores_in_both_dtypes():
+    """A sphere and a capsule as built (one and two core vertices, no padding): the closed-form
+    value, in the input dtype."""
+    for dtype in harness.DTYPES:
+        ball = jaxsat.sphere(np.asarray(0.5, dtype))
+        rod = jaxsat.capsule(np.asarray(1.0, dtype), np.asarray(0.2, dtype))
+        assert ball.size_class.vertices == 1 and rod.size_class.vertices == 2
+        for shape in (ball, rod):
+            assert shape.radius.dtype == dtype and shape.vertices.dtype == dtype
+        value = jaxsat.signed_distance(ball, _pose(3, (0, 0, 0), dtype=dtype), rod,
+                                       _pose(3, (3, 0, 4), dtype=dtype))
+        assert value.dtype == dtype
+        assert abs(float(value) - (np.hypot(3.0, 3.0) - 0.7)) <= 1e-6
+
+
+def test_a_stack_of_circles_capsules_and_polygons_batches_like_single_calls():
+    """Mixed kinds in one stack (padded to one size class; sharp entries get radius 0): the
+    batched answers equal the single calls on the unpadded shapes."""
+    shapes = [jaxsat.circle(0.3), jaxsat.capsule(0.7, 0.2, dim=2), jaxsat.box([0.5, 0.4]),
+              jaxsat.rounded(jaxsat.regular_polygon(5, 0.5), 0.1)]
+    stacked = jaxsat.stack(shapes)
+    np.testing.assert_array_equal(stacked.radius, [0.3, 0.2, 0.0, 0.1])
+    other, other_pose = jaxsat.capsule(0.5, 0.1, dim=2), jaxsat.pose2(0.0, 0.0, 0.0)
+    rng = np.random.default_rng(4)
+    params = rng.uniform(-1.2, 1.2, (len(shapes), 3))
+    batched = jax.jit(jax.vmap(lambda shape, p: jaxsat.signed_distance(
+        shape, jaxsat.pose2(p[0], p[1], p[2]), other, other_pose)))(stacked, params)
+    for i, shape in enumerate(shapes):
+        single = jaxsat.signed_distance(shape, jaxsat.pose2(*params[i]), other, other_pose)
+        np.testing.assert_allclose(batched[i], single, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize(("call", "error", "match"), [
+    (lambda: jaxsat.sphere(-1.0), ValueError, "radius must be finite and >= 0"),
+    (lambda: jaxsat.sphere(np.nan), ValueError, "radius must be finite"),
+    (lambda: jaxsat.sphere("1"), TypeError, "radius must be a number"),
+    (lambda: jaxsat.sphere(True), TypeError, "radius must be a number"),
+    (lambda: jaxsat.circle(np.array([1.0, 2.0])), TypeError, "scalar"),
+    (lambda: jaxsat.capsule(-0.5, 0.1), ValueError, "half_length must be finite and >= 0"),
+    (lambda: jaxsat.capsule(0.5, 0.1, dim=4), ValueError, "dim must be 2 or 3"),
+    (lambda: jaxsat.rounded(np.eye(3), 0.1), TypeError, "must be a jaxsat.Polytope"),
+    (lambda: jaxsat.rounded(jaxsat.stack([jaxsat.box([1.0, 1.0])] * 2), 0.1), TypeError,
+     "unbatched"),
+    (lambda: jaxsat.rounded(jaxsat.box([1.0, 1.0]), np.inf), ValueError, "finite"),
+])
+def test_rounded_constructors_reject_bad_input(call, error, match):
+    with pytest.raises(error, match=match):
+        call()
+
+
+def test_rounded_adds_radii():
+    shape = jaxsat.rounded(jaxsat.rounded(jaxsat.box([1.0, 1.0]), 0.25), 0.5)
+    assert float(shape.radius) == 0.75
+
+
+def test_world_aabbs_grow_by_the_radius():
+    shapes = jaxsat.stack([jaxsat.sphere(0.5), jaxsat.capsule(1.0, 0.25), jaxsat.box([1.0] * 3)])
+    poses = jax.vmap(jaxsat.pose3)(jnp.array([[1.0, 2.0, 3.0], [0.0, 0.0, 0.0], [5.0, 0, 0]]),
+                                   jnp.array([[1.0, 0, 0, 0]] * 3))
+    low, high = jaxsat.world_aabbs(shapes, poses)
+    np.testing.assert_allclose(low, [[0.5, 1.5, 2.5], [-0.25, -0.25, -1.25], [4.0, -1, -1]])
+    np.testing.assert_allclose(high, [[1.5, 2.5, 3.5], [0.25, 0.25, 1.25], [6.0, 1, 1]])
+
+
+@pytest.mark.slow
+def test_collide_finds_every_overlapping_rounded_pair():
+    """A 2D scene of circles, capsules and squares: collide's pairs (levels intersects and
+    penetration) are exactly the pairs with signed distance <= 0, with depth = minus it."""
+    rng = np.random.default_rng(11)
+    makers = [lambda: jaxsat.circle(rng.uniform(0.1, 0.4)),
+              lambda: jaxsat.capsule(rng.uniform(0.0, 0.5), rng.uniform(0.05, 0.2), dim=2),
+              lambda: jaxsat.box(rng.uniform(0.1, 0.3, 2))]
+    count = 30
+    shapes = jaxsat.stack([makers[i % 3]() for i in range(count)])
+    poses = jax.vmap(jaxsat.pose2)(*(jnp.asarray(x) for x in (
+        rng.uniform(0, 4, count), rng.uniform(0, 4, count), rng.uniform(-np.pi, np.pi, count))))
+    rows, cols = np.triu_indices(count, 1)
+    take_pair = lambda tree, index: jax.tree.map(lambda leaf: leaf[index], tree)  # noqa: E731
+    brute = jax.jit(jax.vmap(jaxsat.signed_distance))(
+        take_pair(shapes, rows), take_pair(poses, rows), take_pair(shapes, cols),
+        take_pair(poses, cols))
+    expected = {(int(i), int(j)): float(d) for i, j, d in zip(rows, cols, brute, strict=True)
+                if d <= 0}
+    assert len(expected) >= 5
+    for level in ("intersects", "penetration"):
+        scene = jaxsat.collide(shapes, poses, capacity=256, level=level)
+        assert int(scene.overflow) == 0
+        hits = np.asarray(scene.colliding)
+        found = {tuple(sorted(map(int, pair))): index
+                 for index, pair in enumerate(np.asarray(scene.pairs)) if hits[index]}
+        assert set(found) == set(expected), level
+        if level == "penetration":
+            for pair, index in found.items():
+                assert abs(float(scene.depth[index]) + expected[pair]) <= 1e-5, pair
+
+
+@pytest.mark.parametrize("call", [
+    lambda: jaxsat.contacts(jaxsat.sphere(1.0), jaxsat.pose3(np.zeros(3), np.array([1.0, 0, 0, 0])),
+                            jaxsat.box([1.0] * 3),
+                            jaxsat.pose3(np.zeros(3), np.array([1.0, 0, 0, 0]))),
+    lambda: jaxsat.collide(jaxsat.stack([jaxsat.circle(1.0)] * 2),
+                           jax.vmap(jaxsat.pose2)(jnp.zeros(2), jnp.zeros(2), jnp.zeros(2)),
+                           capacity=4, level="contacts"),
+    lambda: jaxsat.compound([jaxsat.circle(1.0), jaxsat.box([1.0, 1.0])]),
+    lambda: jaxsat.compound_intersects(jaxsat.capsule(1.0, 0.1, dim=2), jaxsat.pose2(0.0, 0.0, 0.0),
+                                       jaxsat.box([1.0, 1.0]), jaxsat.pose2(0.0, 0.0, 0.0)),
+], ids=["contacts", "collide-contacts", "compound", "compound-query"])
+def test_queries_without_rounded_support_say_so(call):
+    with pytest.raises(TypeError, match="does not take rounded shapes"):
+        call()
