@@ -15,6 +15,8 @@ from jaxsat._compound import stack_compounds as stack_compounds
 from jaxsat._contacts import Contacts as Contacts
 from jaxsat._contacts import contacts as contacts
 from jaxsat._decompose import decompose as decompose
+from jaxsat._halfspace import HalfSpace as HalfSpace
+from jaxsat._halfspace import halfspace as halfspace
 from jaxsat._poses import Pose as Pose
 from jaxsat._poses import pose2 as pose2
 from jaxsat._poses import pose3 as pose3
@@ -49,6 +51,7 @@ __all__ = [
     "Compound",
     "CompoundPenetration",
     "Contacts",
+    "HalfSpace",
     "Penetration",
     "Polytope",
     "Pose",
@@ -66,6 +69,7 @@ __all__ = [
     "concave_polygon",
     "contacts",
     "decompose",
+    "halfspace",
     "intersects",
     "penetration",
     "polygon",

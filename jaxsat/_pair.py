@@ -53,7 +53,7 @@ def cast_pair(a, pose_a, b, pose_b):
     # Mixed float32/float64 pairs are promoted on purpose, also under a user's strict
     # promotion setting (where jnp.result_type would raise).
     with jax.numpy_dtype_promotion("standard"):
-        dtype = jnp.result_type(a.vertices, b.vertices, pose_a.translation, pose_b.translation)
+        dtype = jnp.result_type(a.dtype, b.dtype, pose_a.translation, pose_b.translation)
     cast = lambda tree: jax.tree.map(  # noqa: E731
         lambda leaf: jnp.asarray(leaf, dtype if jnp.issubdtype(leaf.dtype, jnp.floating)
                                  else None), tree)

@@ -6,9 +6,11 @@ Each checks its inputs, prepares the pair frame, picks its path statically and r
 shapes; the exact distance search (`_closest`: the SAT, then GJK in 3D or the support faces in
 2D); the smooth one (`_smoothing`).
 
-Rounded shapes (a radius on either shape, static) go through the distance search on their
-cores: the signed distance of two rounded shapes is that of their cores minus r_a + r_b, in
-both regimes, with the cores' axis and the witness points moved out along it by the radii.
+Half-spaces (`_halfspace`) against any other shape need no search: the lowest vertex of
+the other shape's core. Rounded shapes (a radius on either shape, static) go through the
+distance search on their cores: the signed distance of two rounded shapes is that of their
+cores minus r_a + r_b, in both regimes, with the cores' axis and the witness points moved
+out along it by the radii.
 So `penetration` of a rounded pair is minus that signed distance (the exact value also when
 apart), and `intersects` is signed distance <= 0.
 """
@@ -22,15 +24,26 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsat._closest import exact_distance, signed_distance_of_witnesses, witness
+from jaxsat._halfspace import check_kinds, is_plane_pair, plane_query
 from jaxsat._kernels import rotate
-from jaxsat._pair import PairFrame, cast_pair, check_pair, compiled_query, pair_frame
+from jaxsat._pair import PairFrame, cast_pair, check_one_pair, compiled_query, pair_frame
 from jaxsat._poses import Pose
 from jaxsat._sat import min_candidate_depth, sat_search
 from jaxsat._shapes import Polytope
 from jaxsat._smoothing import smooth_signed_distance
 
-__all__ = ["ClosestPoints", "Penetration", "closest_points", "intersects", "penetration",
-           "signed_distance"]
+__all__ = ["ClosestPoints", "Penetration", "check_pair", "closest_points", "intersects",
+           "penetration", "signed_distance"]
+
+
+def check_pair(a, pose_a: Pose, b, pose_b: Pose) -> None:
+    """Raise TypeError unless a and b are Polytopes (or one a HalfSpace) and the poses Poses;
+    ValueError for two half-spaces, batched inputs or mixed dimensions."""
+    check_kinds(a, b)
+    for name, value in (("pose_a", pose_a), ("pose_b", pose_b)):
+        if not isinstance(value, Pose):
+            raise TypeError(f"{name} must be a jaxsat.Pose, got {type(value).__name__}")
+    check_one_pair(a, pose_a, b, pose_b)
 
 
 @jax.tree_util.register_dataclass
@@ -64,6 +77,8 @@ class ClosestPoints:
 
 @compiled_query(check_pair)
 def _exact_signed_distance(a, pose_a, b, pose_b) -> jax.Array:
+    if is_plane_pair(a, b):
+        return plane_query(a, pose_a, b, pose_b).signed_distance
     return _exact_value(pair_frame(a, pose_a, b, pose_b))
 
 
@@ -77,6 +92,8 @@ def _exact_value(frame: PairFrame) -> jax.Array:
 
 @compiled_query(lambda a, pose_a, b, pose_b, tau: check_pair(a, pose_a, b, pose_b))
 def _smooth_signed_distance(a, pose_a, b, pose_b, tau) -> jax.Array:
+    if is_plane_pair(a, b):
+        return plane_query(a, pose_a, b, pose_b, tau).signed_distance
     frame = pair_frame(a, pose_a, b, pose_b)
     core = smooth_signed_distance(frame, jnp.asarray(tau, frame.dtype))
     return core - frame.radius_a - frame.radius_b if frame.is_rounded else core
@@ -105,7 +122,8 @@ def signed_distance(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
     """Signed distance between two convex shapes: > 0 apart, < 0 overlapping.
 
     Args:
-      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches).
+      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches): Polytopes,
+        sharp or rounded, or one HalfSpace.
       pose_a, pose_b: their poses.
       smoothing: None (the default) for the exact value: the Euclidean distance when the
         shapes are apart, minus the exact penetration depth when they overlap. A length
@@ -125,10 +143,10 @@ def signed_distance(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
       gap along its best axis (see `_smoothing`): continuous wherever the shapes are apart.
 
     Raises:
-      TypeError: a or b is not a Polytope, a pose is not a Pose, or smoothing is neither
-        None nor a scalar number.
-      ValueError: batched inputs, mixed dimensions, or a concrete smoothing that is not a
-        finite number > 0.
+      TypeError: a or b is neither a Polytope nor a HalfSpace, a pose is not a Pose, or
+        smoothing is neither None nor a scalar number.
+      ValueError: two half-spaces, batched inputs, mixed dimensions, or a concrete smoothing
+        that is not a finite number > 0.
     """
     check_pair(a, pose_a, b, pose_b)
     _check_smoothing(smoothing)
@@ -147,6 +165,10 @@ def closest_points(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> Clos
     touch after the minimum translation. Values only: the search is not differentiated
     (differentiate `signed_distance`, whose value equals the `signed_distance` field here).
     """
+    if is_plane_pair(a, b):
+        found = jax.lax.stop_gradient(plane_query(a, pose_a, b, pose_b))
+        return ClosestPoints(signed_distance=found.signed_distance, point_a=found.point_a,
+                             point_b=found.point_b, normal=found.normal)
     frame = jax.lax.stop_gradient(pair_frame(a, pose_a, b, pose_b))
     found = exact_distance(frame)
     point_a = witness(found.weights, frame.a.vertices, found.index_a)
@@ -172,7 +194,8 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
     """Exact SAT penetration depth and axis for one pair of convex shapes.
 
     Args:
-      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches).
+      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches): Polytopes,
+        sharp or rounded, or one HalfSpace.
       pose_a, pose_b: their poses.
       prune: in 3D, skip the edge pairs whose arcs do not cross on the Gauss map (they do not
         bound the Minkowski difference, so they never give the answer). False tests every
@@ -188,6 +211,9 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
       difference and at most the distance between the shapes. normal is a world-frame unit
       vector pointing from a towards b.
     """
+    if is_plane_pair(a, b):
+        found = plane_query(a, pose_a, b, pose_b)
+        return Penetration(depth=-found.signed_distance, normal=found.normal)
     frame = pair_frame(a, pose_a, b, pose_b)
     if frame.is_rounded:
         found = exact_distance(jax.lax.stop_gradient(frame))
@@ -211,6 +237,8 @@ def intersects(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> jax.Arra
     Under jax.vmap that skip would not pay (both branches of a batched cond run), so the
     batched query goes straight to the SAT minimum; the answer is the same either way.
     """
+    if is_plane_pair(a, b):
+        return jax.lax.stop_gradient(plane_query(a, pose_a, b, pose_b).signed_distance) <= 0
     if a.is_rounded or b.is_rounded:
         frame = jax.lax.stop_gradient(pair_frame(a, pose_a, b, pose_b))
         found = exact_distance(frame)

@@ -43,6 +43,7 @@ import jax.numpy as jnp
 
 from jaxsat import _kernels as kernels
 from jaxsat._closest import exact_distance
+from jaxsat._halfspace import HalfSpace, check_kinds
 from jaxsat._kernels import Vec, dot, materialize, safe_divide, where
 from jaxsat._pair import PairFrame
 from jaxsat._sat import sat_runner_up
@@ -381,16 +382,20 @@ def smooth_signed_distance(frame: PairFrame, tau) -> jax.Array:
 def smoothing_error_bound(a: Polytope, b: Polytope) -> jax.Array:
     """The constant c with exact - c * tau <= signed_distance(..., smoothing=tau) <= exact.
 
-    c = log(n_a n_b), with n_a, n_b the real vertex counts: log-sum-exp over n values exceeds
-    their maximum by at most tau log n (see `_smoothing`'s docstring). About 4.2 for two boxes
-    or two 8-gons, 6.0 for two 20-vertex hulls. To keep the smooth value within a length
-    `tolerance` of the exact one, pick tau = tolerance / c; tau of 1% to 10% of the shapes'
-    size gives gradients that see features a few tau away. Works on single shapes and on
-    batches (broadcasting).
+    c = log(n_a n_b), with n_a, n_b the real vertex counts (1 for a half-space): log-sum-exp
+    over n values exceeds their maximum by at most tau log n (see `_smoothing`'s docstring).
+    About 4.2 for two boxes or two 8-gons, 6.0 for two 20-vertex hulls. To keep the smooth value
+    within a length `tolerance` of the exact one, pick tau = tolerance / c; tau of 1% to 10% of
+    the shapes' size gives gradients that see features a few tau away. Works on single shapes
+    and on batches (broadcasting).
     """
-    if not isinstance(a, Polytope) or not isinstance(b, Polytope):
-        raise TypeError("a and b must be jaxsat.Polytope shapes")
+    check_kinds(a, b)
     if a.dim != b.dim:
         raise ValueError(f"a and b must share one dimension, got {a.dim}D and {b.dim}D")
-    vertex_pairs = jnp.sum(a.vertex_mask, axis=-1) * jnp.sum(b.vertex_mask, axis=-1)
-    return jnp.log(vertex_pairs.astype(a.dtype))
+
+    def count(shape):  # a half-space's signed distance softens no maximum of its own
+        if isinstance(shape, HalfSpace):
+            return jnp.ones(shape.batch_shape, jnp.int32)
+        return jnp.sum(shape.vertex_mask, axis=-1, dtype=jnp.int32)
+
+    return jnp.log((count(a) * count(b)).astype(a.dtype))

@@ -12,13 +12,18 @@ import pytest
 README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
 
 
-def test_readme_example_runs():
+def _run_example(index: int, what: str) -> list[str]:
+    """Run the README's python block `index` in a fresh interpreter; its output lines."""
     blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
-    assert blocks, "README.md has no python example"
-    result = subprocess.run([sys.executable, "-c", blocks[0]], capture_output=True, text=True,
-                            timeout=300, check=False)
+    assert len(blocks) > index, f"README.md has no {what} example"
+    result = subprocess.run([sys.executable, "-c", blocks[index]], capture_output=True,
+                            text=True, timeout=300, check=False)
     assert result.returncode == 0, result.stderr
-    lines = result.stdout.splitlines()
+    return result.stdout.splitlines()
+
+
+def test_readme_example_runs():
+    lines = _run_example(0, "python")
     assert lines[0].split()[0].startswith(("0.2", "0.19999")) and lines[0].endswith("[1. 0.]")
     assert re.fullmatch(r"\[\s*0\.75\s+0\.4045\d*\s+-1\.5\s*\]", lines[1]), lines[1]
     assert lines[2] == "-1.0"
@@ -26,12 +31,7 @@ def test_readme_example_runs():
 
 @pytest.mark.slow
 def test_readme_signed_distance_example_runs():
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
-    assert len(blocks) >= 2, "README.md has no signed-distance example"
-    result = subprocess.run([sys.executable, "-c", blocks[1]], capture_output=True, text=True,
-                            timeout=300, check=False)
-    assert result.returncode == 0, result.stderr
-    lines = result.stdout.splitlines()
+    lines = _run_example(1, "signed-distance")
     assert abs(float(lines[0]) - 2**0.5) < 1e-6
     assert float(lines[1]) == -1.0
     assert re.fullmatch(r"\[1\.\s+1\.\]\s+\[2\.\s+2\.\]", lines[2]), lines[2]
@@ -42,12 +42,7 @@ def test_readme_signed_distance_example_runs():
 
 @pytest.mark.slow
 def test_readme_rounded_example_runs():
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
-    assert len(blocks) >= 3, "README.md has no rounded-shapes example"
-    result = subprocess.run([sys.executable, "-c", blocks[2]], capture_output=True, text=True,
-                            timeout=300, check=False)
-    assert result.returncode == 0, result.stderr
-    distance, depth, overlap = result.stdout.split()
+    distance, depth, overlap = _run_example(2, "rounded-shapes")[0].split()
     assert abs(float(distance) - 1.25) < 1e-6 and abs(float(depth) - 0.1) < 1e-6
     assert overlap == "True"
 
@@ -60,12 +55,7 @@ def test_quickstart_commands():
 
 @pytest.mark.slow
 def test_readme_scene_example_runs():
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
-    assert len(blocks) >= 4, "README.md has no scene example"
-    result = subprocess.run([sys.executable, "-c", blocks[3]], capture_output=True, text=True,
-                            timeout=300, check=False)
-    assert result.returncode == 0, result.stderr
-    lines = result.stdout.splitlines()
+    lines = _run_example(3, "scene")
     assert lines[0] == "4 [0.1 0.1 0.1 0.1] [0. 0. 1.]", lines[0]
     assert lines[1] == "0 25", lines[1]
     assert lines[2] == "2 False", lines[2]

@@ -1,8 +1,10 @@
-"""Rounded shapes (spheres, circles, capsules, rounded polytopes) against independent oracles.
+"""Rounded shapes (spheres, circles, capsules, rounded polytopes) and half-spaces against
+independent oracles.
 
 A rounded shape is the set of points within r of its core. The references: closed forms where
 both cores are points or segments (`oracle.segment_distance`), and otherwise the Minkowski
-difference oracle of the cores (full-dimensional as soon as one core is), minus the radii.
+difference oracle of the cores (full-dimensional as soon as one core is), minus the radii;
+for half-spaces, the lowest world vertex's height above the world plane, in NumPy.
 """
 
 from __future__ import annotations
@@ -439,3 +441,136 @@ def test_collide_finds_every_overlapping_rounded_pair():
 def test_queries_without_rounded_support_say_so(call):
     with pytest.raises(TypeError, match="does not take rounded shapes"):
         call()
+
+
+# --------------------------------------------------------------------------------------------
+# Half-spaces.
+# --------------------------------------------------------------------------------------------
+
+
+def _plane_query(plane, params_plane, shape, params_shape):
+    """Both orders of every query on a half-space and a shape, and the exact and smooth
+    gradients in the shape's translation."""
+    pose_plane, pose_shape = harness.make_pose(params_plane), harness.make_pose(params_shape)
+
+    def of(translation, smoothing):
+        params = (translation[0], translation[1], params_shape[2]) if shape.dim == 2 else (
+            translation, params_shape[1])
+        return jaxsat.signed_distance(plane, pose_plane, shape, harness.make_pose(params),
+                                      smoothing=smoothing)
+
+    translation = (jnp.stack([params_shape[0], params_shape[1]]) if shape.dim == 2
+                   else params_shape[0])
+    return {"first": jaxsat.closest_points(plane, pose_plane, shape, pose_shape),
+            "second": jaxsat.closest_points(shape, pose_shape, plane, pose_plane),
+            "penetration": jaxsat.penetration(plane, pose_plane, shape, pose_shape),
+            "intersects": jaxsat.intersects(shape, pose_shape, plane, pose_plane),
+            "exact": jax.value_and_grad(of)(translation, None),
+            "smooth": jax.value_and_grad(of)(translation, SMOOTHING),
+            "bound": jaxsat.smoothing_error_bound(plane, shape)}
+
+
+_batched_plane_query = jax.jit(jax.vmap(_plane_query), compiler_options=harness.FAST_COMPILE)
+
+
+@pytest.mark.parametrize(("name", "dtype"), [("box-class", np.float64),
+                                             ("box-class", np.float32),
+                                             ("polygon-class", np.float64)])
+def test_halfspace_queries_match_the_lowest_vertex(name, dtype):
+    """A random half-space against spheres, capsules, rounded and sharp polytopes, in either
+    order: the signed distance is the least height of the core's world vertices above the
+    world plane minus the radius (NumPy); point_a and point_b lie on the plane and on the
+    shape, q - p = distance * normal, the normal is the plane's (from a towards b); penetration
+    is minus the distance, intersects its sign; gradients are finite with norm <= 1, and the
+    smooth value obeys its bound with c = log(n)."""
+    pool = rounded_pool(name, dtype)
+    dim = pool.pool.dim
+    rng = np.random.default_rng([9, dim])
+    normals = rng.normal(size=(COUNT, dim))
+    offsets = rng.uniform(-1.0, 1.0, COUNT)
+    planes = jax.vmap(lambda n, o: jaxsat.HalfSpace(n / jnp.linalg.norm(n), o))(
+        normals.astype(dtype), offsets.astype(dtype))
+    params_plane = harness.random_params(dim, COUNT, rng, dtype)
+    params_shape = harness.random_params(dim, COUNT, rng, dtype)
+    index = rng.integers(len(pool.kinds), size=COUNT)
+    found = harness.run_batched(_batched_plane_query, COUNT, planes, params_plane,
+                                harness.take(pool.pool.shapes, index), params_shape)
+    rotations_plane = harness.rotations(dim, params_plane)
+    world_normals = np.einsum("nij,nj->ni", rotations_plane,
+                              np.asarray(planes.normal, np.float64))
+    world_offsets = (np.asarray(planes.offset, np.float64)
+                     + np.sum(world_normals * harness.translations(dim, params_plane), axis=1))
+    rotations_shape = harness.rotations(dim, params_shape)
+    translations_shape = harness.translations(dim, params_shape)
+    for i in range(COUNT):
+        world = oracle.to_world(pool.pool.points[index[i]], rotations_shape[i],
+                                translations_shape[i])
+        radius = pool.radii[index[i]]
+        heights = world @ world_normals[i] - world_offsets[i]
+        expected = heights.min() - radius
+        size = oracle.bounding_radius(world) + radius + abs(heights.min())
+        tolerance = 10 * harness.RELATIVE_TOLERANCE[dtype] * size
+        label = f"{pool.kinds[index[i]]} pair {i}"
+        first, second = found["first"], found["second"]
+        for result, sense in ((first, 1.0), (second, -1.0)):
+            assert abs(result.signed_distance[i] - expected) <= tolerance, label
+            np.testing.assert_allclose(result.normal[i], sense * world_normals[i],
+                                       atol=10 * harness.UNIT_TOLERANCE[dtype], err_msg=label)
+            np.testing.assert_allclose(result.point_b[i] - result.point_a[i],
+                                       result.signed_distance[i] * result.normal[i],
+                                       atol=tolerance, err_msg=label)
+        on_plane = first.point_a[i] @ world_normals[i] - world_offsets[i]
+        assert abs(on_plane) <= tolerance, label
+        if expected > tolerance:
+            on_shape = distance_to_core(first.point_b[i], world, pool.degenerate(index[i]))
+            assert abs(on_shape - radius) <= tolerance, label
+        assert abs(found["penetration"].depth[i] + expected) <= tolerance, label
+        if abs(expected) > tolerance:
+            assert found["intersects"][i] == (expected < 0), label
+        exact, exact_move = (x[i] for x in found["exact"])
+        smooth, smooth_move = (x[i] for x in found["smooth"])
+        assert abs(exact - expected) <= tolerance, label
+        for move in (exact_move, smooth_move):
+            assert np.all(np.isfinite(move)), label
+            assert np.linalg.norm(move) <= 1 + 10 * harness.UNIT_TOLERANCE[dtype], label
+        count = np.sum(np.asarray(pool.pool.shapes.vertex_mask[index[i]]))
+        assert abs(found["bound"][i] - np.log(count)) <= 1e-6, label
+        assert exact - found["bound"][i] * SMOOTHING - tolerance <= smooth <= exact + tolerance
+
+
+def test_halfspace_constructor_normalises_and_rejects_bad_input():
+    plane = jaxsat.halfspace([0.0, 0.0, 2.0], 4.0)
+    np.testing.assert_allclose(plane.normal, [0.0, 0.0, 1.0])
+    assert float(plane.offset) == 2.0
+    for args, error, match in [(([0.0, 0.0, 0.0],), ValueError, "non-zero"),
+                               (([np.nan, 0.0],), ValueError, "finite"),
+                               (([1.0, 0.0, 0.0, 0.0],), ValueError, "2 or 3 entries"),
+                               (([1.0, 0.0], [1.0, 2.0]), ValueError, "offset"),
+                               ((["x", 0.0],), TypeError, "numbers")]:
+        with pytest.raises(error, match=match):
+            jaxsat.halfspace(*args)
+    ground = jaxsat.halfspace([0.0, 1.0])
+    origin = jaxsat.pose2(0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="both half-spaces"):
+        jaxsat.signed_distance(ground, origin, ground, origin)
+    with pytest.raises(TypeError, match="Polytope"):
+        jaxsat.contacts(ground, origin, jaxsat.box([1.0, 1.0]), origin)
+
+
+def test_a_face_resting_on_a_halfspace_has_finite_unit_gradients():
+    """A box face flush with the ground (4 vertices tie) and a sphere touching it: value 0,
+    finite exact and smooth gradients in every input, unit-bounded in the translation."""
+    ground, upright = jaxsat.halfspace([0.0, 0.0, 1.0], dtype=np.float32), np.float32([1, 0, 0, 0])
+    origin = jaxsat.pose3(np.zeros(3, np.float32), upright)
+    for shape, height in ((jaxsat.box(np.float32([1.0, 1.0, 1.0])), 1.0),
+                          (jaxsat.sphere(np.float32(0.5)), 0.5)):
+        pose = jaxsat.pose3(np.float32([0.3, -0.2, height]), upright)
+        assert float(jaxsat.signed_distance(ground, origin, shape, pose)) == 0.0
+        for smoothing in (None, 0.05):
+            gradients = jax.grad(lambda *args, smoothing=smoothing: jaxsat.signed_distance(
+                *args, smoothing=smoothing), argnums=(0, 1, 2, 3), allow_int=True)(
+                ground, origin, shape, pose)
+            for leaf in jax.tree.leaves(gradients):
+                if jnp.issubdtype(leaf.dtype, jnp.floating):
+                    assert np.all(np.isfinite(leaf))
+            np.testing.assert_allclose(gradients[3].translation, [0.0, 0.0, 1.0], atol=1e-6)
