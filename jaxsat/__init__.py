@@ -17,6 +17,8 @@ from jaxsat._contacts import contacts as contacts
 from jaxsat._decompose import decompose as decompose
 from jaxsat._halfspace import HalfSpace as HalfSpace
 from jaxsat._halfspace import halfspace as halfspace
+from jaxsat._mesh import load_mesh as load_mesh
+from jaxsat._mesh import mesh_compound as mesh_compound
 from jaxsat._poses import Pose as Pose
 from jaxsat._poses import pose2 as pose2
 from jaxsat._poses import pose3 as pose3
@@ -71,6 +73,8 @@ __all__ = [
     "decompose",
     "halfspace",
     "intersects",
+    "load_mesh",
+    "mesh_compound",
     "penetration",
     "polygon",
     "polyhedron",

@@ -6,6 +6,7 @@ import pathlib
 import re
 import subprocess
 import sys
+import textwrap
 
 import pytest
 
@@ -16,8 +17,9 @@ def _run_example(index: int, what: str) -> list[str]:
     """Run the README's python block `index` in a fresh interpreter; its output lines."""
     blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.DOTALL)
     assert len(blocks) > index, f"README.md has no {what} example"
-    result = subprocess.run([sys.executable, "-c", blocks[index]], capture_output=True,
-                            text=True, timeout=300, check=False)
+    # A block inside a list item is indented; run it as written at the left margin.
+    result = subprocess.run([sys.executable, "-c", textwrap.dedent(blocks[index])],
+                            capture_output=True, text=True, timeout=300, check=False)
     assert result.returncode == 0, result.stderr
     return result.stdout.splitlines()
 
@@ -59,3 +61,9 @@ def test_readme_scene_example_runs():
     assert lines[0] == "4 [0.1 0.1 0.1 0.1] [0. 0. 1.]", lines[0]
     assert lines[1] == "0 25", lines[1]
     assert lines[2] == "2 False", lines[2]
+
+
+@pytest.mark.slow
+def test_readme_mesh_example_runs():
+    pytest.importorskip("coacd")
+    assert _run_example(4, "mesh")[-1] == "True False True"
