@@ -52,8 +52,8 @@ class Polytope:
     with False). So padding never changes a minimum or a maximum over rows, and extremes,
     supports and SAT depths need no mask; the masks are needed only where a row is counted or
     weighted (soft extremes, the real vertex count of a polygon ring, contact slots). Build
-    instances with `polygon`, `polyhedron`, `box`, `regular_polygon` and batch them with
-    `stack` (which adds a leading batch axis).
+    instances with `polygon`, `polyhedron`, `box`, `regular_polygon`, `sphere`, `circle`,
+    `capsule` and `rounded`, and batch them with `stack` (which adds a leading batch axis).
 
     Edges. In 2D the real vertices come first, counter-clockwise, and edge i joins vertex i and
     vertex i + 1 of the ring of `num_real_vertices` (`ring_neighbours`); because padding
