@@ -79,15 +79,15 @@ class ClosestPoints:
 def _exact_signed_distance(a, pose_a, b, pose_b) -> jax.Array:
     if is_plane_pair(a, b):
         return plane_query(a, pose_a, b, pose_b).signed_distance
-    return _exact_value(pair_frame(a, pose_a, b, pose_b))
+    return _exact_value(pair_frame(a, pose_a, b, pose_b))[0]
 
 
-def _exact_value(frame: PairFrame) -> jax.Array:
-    """The exact signed distance of a prepared pair, differentiable (rounded: the cores'
-    minus the radii)."""
-    found = exact_distance(jax.lax.stop_gradient(frame))
-    core = signed_distance_of_witnesses(frame, jax.lax.stop_gradient(found))
-    return core - frame.radius_a - frame.radius_b if frame.is_rounded else core
+def _exact_value(frame: PairFrame):
+    """(the exact signed distance of a prepared pair, differentiable (rounded: the cores'
+    minus the radii); the search's answer, values only)."""
+    found = jax.lax.stop_gradient(exact_distance(jax.lax.stop_gradient(frame)))
+    core = signed_distance_of_witnesses(frame, found)
+    return (core - frame.radius_a - frame.radius_b if frame.is_rounded else core), found
 
 
 @compiled_query(lambda a, pose_a, b, pose_b, tau: check_pair(a, pose_a, b, pose_b))
@@ -216,9 +216,9 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
         return Penetration(depth=-found.signed_distance, normal=found.normal)
     frame = pair_frame(a, pose_a, b, pose_b)
     if frame.is_rounded:
-        found = exact_distance(jax.lax.stop_gradient(frame))
-        return Penetration(depth=-_exact_value(frame),
-                           normal=frame.direction_to_world(jax.lax.stop_gradient(found.axis)))
+        # One search gives both the value and the axis.
+        value, found = _exact_value(frame)
+        return Penetration(depth=-value, normal=frame.direction_to_world(found.axis))
     found = sat_search(frame, prune)
     return Penetration(depth=found.depth, normal=frame.direction_to_world(found.axis))
 

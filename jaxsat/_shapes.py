@@ -313,6 +313,14 @@ def _core(vertices: np.ndarray, axes: np.ndarray, quarters: np.ndarray, dtype) -
     return _build(vertices, axes, direction, endpoints, quarters, sizes, dtype)
 
 
+def _ball(radius, dim: int, dtype) -> Polytope:
+    """A ball (3D) or disc (2D) of `radius` about the origin: a rounded one-point core."""
+    r = _as_radius(radius)
+    dtype = float_dtype(np.asarray(radius), dtype)
+    core = _core(np.zeros((1, dim)), np.eye(dim), np.zeros((0, 2, dim)), dtype)
+    return dataclasses.replace(core, radius=jnp.asarray(r, dtype))
+
+
 def sphere(radius, *, dtype=None) -> Polytope:
     """A 3D ball of `radius` about the origin (a rounded shape whose core is one point).
 
@@ -320,10 +328,7 @@ def sphere(radius, *, dtype=None) -> Polytope:
       TypeError: a radius that is not a scalar number.
       ValueError: a radius that is not finite and >= 0.
     """
-    r = _as_radius(radius)
-    dtype = float_dtype(np.asarray(radius), dtype)
-    core = _core(np.zeros((1, 3)), np.eye(3), np.zeros((0, 2, 3)), dtype)
-    return dataclasses.replace(core, radius=jnp.asarray(r, dtype))
+    return _ball(radius, 3, dtype)
 
 
 def circle(radius, *, dtype=None) -> Polytope:
@@ -331,10 +336,7 @@ def circle(radius, *, dtype=None) -> Polytope:
 
     Raises: as `sphere`.
     """
-    r = _as_radius(radius)
-    dtype = float_dtype(np.asarray(radius), dtype)
-    core = _core(np.zeros((1, 2)), np.eye(2), np.zeros((0, 2, 2)), dtype)
-    return dataclasses.replace(core, radius=jnp.asarray(r, dtype))
+    return _ball(radius, 2, dtype)
 
 
 def capsule(half_length, radius, dim: int = 3, *, dtype=None) -> Polytope:
