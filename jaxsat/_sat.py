@@ -287,16 +287,20 @@ def sat_search(frame: PairFrame, prune: bool = True) -> SatAxis:
     return SatAxis(depth, axis, feature)
 
 
-def sat_runner_up(frame: PairFrame, min_angle) -> jax.Array:
+def sat_runner_up(frame: PairFrame, first, min_angle) -> jax.Array:
     """(D,) unit axis (a's frame) of the best candidate more than `min_angle` radians (may be
-    traced) from the winner: where two penetration directions tie, the other one. Projected
-    candidates near the winner are masked (padding repeats a face normal, and parallel faces
-    of a and b give one direction); a Gauss-map group offers its best pair unless that is near
-    the winner. With no such candidate, the winner's own axis."""
+    traced) from the unit axis `first` (a penetration direction found by another search):
+    where two penetration directions tie, the other one. Projected candidates near `first`
+    are masked (padding repeats a face normal, and parallel faces of a and b give one
+    direction); a Gauss-map group offers its best pair unless that is near `first`. With no
+    such candidate, `first`.
+
+    Measured from `first`, not from this search's own winner: where the directions tie
+    exactly (identical shapes at one pose tie u and -u), the two searches may break the tie
+    differently, and the winner's rival would then lie next to `first`."""
     found = candidates(frame)
-    _, winner, _ = _smallest(_winners(found))
-    best_depth, best_axis, _ = _smallest(_winners(found, winner, jnp.cos(min_angle)))
-    return where(jnp.isfinite(best_depth), best_axis, winner)
+    best_depth, best_axis, _ = _smallest(_winners(found, first, jnp.cos(min_angle)))
+    return where(jnp.isfinite(best_depth), best_axis, first)
 
 
 def _support(axis, points):

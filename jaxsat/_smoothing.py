@@ -248,7 +248,9 @@ def _trust_region_step(gradient, hessian, radius):
 
 
 def _search(frame: PairFrame, tau, start):
-    """The axis maximising soft_gap, from `start` (values only): trust-region Newton steps on
+    """The axis maximising soft_gap from `start` (values only), minus soft_gap there (as
+    tracked by the loop), and the squared norm of soft_gap's gradient on the sphere there:
+    trust-region Newton steps on
     the sphere, each accepted only if soft_gap rises; the region grows when the model predicted
     the rise well and shrinks when it did not. The loop carries the axis, the radius, the step
     stretch and the axis's moments in one packed array (`_packed_moments`), and everything
@@ -302,7 +304,10 @@ def _search(frame: PairFrame, tau, start):
     radius = jnp.minimum(_FIRST_RADIUS * tau / extent, _MAX_RADIUS)
     state = (start, _packed_moments(summary, kernels.as_vec(start), tau), radius,
              jnp.ones((), frame.dtype))
-    return jax.lax.fori_loop(0, NEWTON_STEPS, step, state)[0]
+    axis, packed, _, _ = jax.lax.fori_loop(0, NEWTON_STEPS, step, state)
+    axis = kernels.as_vec(axis)
+    gradient = _riemannian(axis, _unpack(summary, packed), tau)[1]
+    return jnp.stack(axis), packed[1, 0] + packed[0, 0], kernels.vdot(gradient, gradient)
 
 
 def soft_gap(frame: PairFrame, axis, tau):
@@ -318,14 +323,21 @@ def _maximiser(frame: PairFrame, tau):
     starts. The first is the exact maximiser, so that the result is within the bound. The
     second is the best SAT candidate more than a few tau / extent radians from the first
     (nearer ones share its basin): where two penetration directions tie, the local maximum
-    near each is found, and taking the larger keeps the value continuous when they swap."""
+    near each is found, and taking the larger keeps the value continuous when they swap.
+    Between values that tie within rounding, the axis where soft_gap is flatter wins."""
     frozen, tau = jax.lax.stop_gradient((frame, tau))
     extent = jnp.max(jnp.abs(frozen.a.vertices)) + jnp.max(jnp.abs(frozen.b_vertices))
     apart = jnp.clip(_SECOND_START_ANGLE * tau / extent, 1e-3, 0.5)
-    starts = jnp.stack([exact_distance(frozen).axis, sat_runner_up(frozen, apart)])
-    axes = jax.vmap(_search, in_axes=(None, None, 0))(frozen, tau, starts)
-    values = jax.vmap(soft_gap, in_axes=(None, 0, None))(frozen, axes, tau)
-    return where(values[1] > values[0], axes[1], axes[0])
+    first = exact_distance(frozen).axis
+    starts = jnp.stack([first, sat_runner_up(frozen, first, apart)])
+    axes, losses, slopes = jax.vmap(_search, in_axes=(None, None, 0))(frozen, tau, starts)
+    # Near a maximum soft_gap changes only to second order, so an axis 1e-8 off the maximum
+    # (a search that ran out of steps) has a value equal to the maximum up to rounding, but
+    # a gradient off by 1e-8: between values that tie within rounding, the flatter axis wins.
+    rounding = 64 * jnp.finfo(frozen.dtype).eps * (extent + jnp.abs(losses[0]))
+    second = (losses[1] < losses[0] - rounding) | (
+        (losses[1] <= losses[0] + rounding) & (slopes[1] < slopes[0]))
+    return where(second, axes[1], axes[0])
 
 
 @_maximiser.defjvp
