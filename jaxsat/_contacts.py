@@ -19,6 +19,25 @@ is the reference: a reference that flips between frames (equal boxes resting on 
 whose normal comes out of either shape's face with rounding) moves no point.
 
 Everything is computed in a's local frame and mapped to the world at the end.
+
+Rounded shapes. A rounded shape's surface is its core's surface moved out by the radius, so
+the manifold is the cores' manifold along the rounded pair's normal (the cores' exact distance
+axis, as `penetration` uses), every depth larger by r_a + r_b and every point moved by
+(r_a - r_b) / 2 along the normal, to the midpoint between the two rounded surfaces. A
+segment core (a capsule) offers its segment as a two-sided face: its ends and its crossings
+with the other face's edges clip it, and two segments that are parallel seen along the normal
+overlap on an interval (two points). A point core (a sphere) offers no face: its single
+point is the midpoint of the exact witness points. The deepest point's depth is the exact
+penetration depth (minus the signed distance). At the other points the depth is the cores'
+gap along the normal there plus r_a + r_b: the local overlap of the rounded surfaces where
+both cores' surfaces are across the normal there (parallel faces, a capsule parallel to a
+face, parallel capsules); where a core's surface is tilted away from the normal, the rounded
+surface lies farther out than r along the normal, and the reported point is inside it.
+
+Half-spaces. A shape on a half-space touches it at its lowest core vertices: every real
+vertex within the margin of the plane (its depth is the radius minus its height) is a
+candidate, reduced like a clipped face (3D: to 4 spanning the largest area; 2D: the deepest
+and the farthest from it).
 """
 
 from __future__ import annotations
@@ -30,6 +49,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsat._closest import exact_distance, witness
+from jaxsat._halfspace import HalfSpace, is_plane_pair
 from jaxsat._kernels import (
     chord,
     cross,
@@ -41,10 +62,11 @@ from jaxsat._kernels import (
     safe_divide,
     where,
 )
-from jaxsat._pair import PairFrame, check_pair, compiled_query, pair_frame
+from jaxsat._pair import PairFrame, cast_pair, compiled_query, pair_frame, relative_pose
 from jaxsat._poses import Pose
+from jaxsat._queries import check_pair
 from jaxsat._sat import sat_search
-from jaxsat._shapes import Polytope, require_sharp
+from jaxsat._shapes import Polytope
 
 __all__ = ["Contacts", "contacts"]
 
@@ -137,8 +159,6 @@ class _Candidates(NamedTuple):
 
 def _check_contacts(a, pose_a, b, pose_b, *, margin=0.0) -> None:
     check_pair(a, pose_a, b, pose_b)
-    require_sharp(a, "a", "contacts")
-    require_sharp(b, "b", "contacts")
     _check_margin(margin)
 
 
@@ -146,6 +166,10 @@ def _check_contacts(a, pose_a, b, pose_b, *, margin=0.0) -> None:
 def contacts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
              margin=0.0) -> Contacts:
     """Contact manifold of one pair of convex shapes: up to 2 (2D) or 4 (3D) points.
+
+    Takes sharp and rounded Polytopes and one HalfSpace (see the module docstring for rounded
+    shapes and half-spaces): a sphere touches at 1 point, a capsule at up to 2, a rounded box
+    or a shape on a half-space at up to 4 (3D).
 
     The normal is `penetration`'s. Faces: a's face whose outward normal is best aligned with
     +normal and b's face best aligned with -normal, each among the faces at that shape's
@@ -176,7 +200,8 @@ def contacts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
     penetration depth. The same single point stands in if clipping finds nothing.
 
     Args:
-      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches).
+      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches): Polytopes,
+        sharp or rounded, or one HalfSpace.
       pose_a, pose_b: their poses.
       margin: non-negative distance: points whose depth is at least -margin are valid, so that
         shapes up to `margin` apart already get (negative-depth) contacts. May be traced.
@@ -186,9 +211,10 @@ def contacts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
       is below -margin; a point is valid when its depth is at least -margin (within rounding).
 
     Raises:
-      TypeError: a or b is not a Polytope, a pose is not a Pose, or margin is not a number.
-      ValueError: batched inputs, mixed dimensions, or a concrete margin that is negative,
-        NaN or infinite.
+      TypeError: a or b is neither a Polytope nor a HalfSpace, a pose is not a Pose, or
+        margin is not a number.
+      ValueError: two half-spaces, batched inputs, mixed dimensions, or a concrete margin
+        that is negative, NaN or infinite.
     """
     return _manifold(a, pose_a, b, pose_b, margin)[0]
 
@@ -223,27 +249,103 @@ class _Frame(NamedTuple):
     """() float: the margin."""
 
 
-def _manifold(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose,
-              margin=0.0) -> tuple[Contacts, _Details]:
+def _manifold(a, pose_a: Pose, b, pose_b: Pose, margin=0.0) -> tuple[Contacts, _Details]:
     """`contacts` plus the faces it used (see `_Details`)."""
     _check_margin(margin)
+    if is_plane_pair(a, b):
+        return _plane_manifold(a, pose_a, b, pose_b, margin)
     pair = pair_frame(a, pose_a, b, pose_b)
-    found = materialize(sat_search(pair))
-    frame = _frame(pair, found.axis, margin)
+    if pair.is_rounded:
+        # The cores' manifold along the rounded normal, within the margin plus the radii.
+        found = materialize(exact_distance(jax.lax.stop_gradient(pair)))
+        axis, core_depth = found.axis, -found.distance
+        on_a = witness(found.weights, pair.a.vertices, found.index_a)
+        single_point = on_a + (found.distance / 2) * axis
+        radii = pair.radius_a + pair.radius_b
+        frame = _frame(pair, axis, margin + radii, radii)
+    else:
+        found = materialize(sat_search(pair))
+        axis, core_depth, single_point = found.axis, found.depth, None
+        frame = _frame(pair, axis, margin, 0.0)
     clip = _polygon_contacts if pair.dim == 2 else _hull_contacts
     candidates, edges, edge_edge, face_a, face_b = clip(pair.a, pair.b, frame)
-    points, depths, valid, single = _assemble(candidates, edges, edge_edge, found.depth, frame)
+    if single_point is None:
+        single_point = _closest_midpoint(*edges)
+    points, depths, valid, single = _assemble(candidates, single_point, edge_edge, core_depth,
+                                              frame)
+    depth = core_depth
+    if pair.is_rounded:
+        points = points + ((pair.radius_a - pair.radius_b) / 2) * axis
+        depths, depth = depths + radii, core_depth + radii
     to_world = pair.direction_to_world
     reference_is_b = (chord(face_b.normal, -frame.normal) + _TIE_ANGLE
                       < chord(face_a.normal, frame.normal))
     details = _Details(reference_is_b, to_world(face_a.normal), to_world(face_b.normal), single,
-                       found.depth)
+                       depth)
     return Contacts(points=pair.to_world(points), depths=depths,
-                    normal=to_world(found.axis), valid=valid), details
+                    normal=to_world(axis), valid=valid), details
 
 
-def _frame(pair: PairFrame, axis, margin) -> _Frame:
-    size = jnp.maximum(jnp.max(jnp.abs(pair.a.vertices)), jnp.max(jnp.abs(pair.b.vertices)))
+def _plane_manifold(a, pose_a: Pose, b, pose_b: Pose, margin) -> tuple[Contacts, _Details]:
+    """A shape on a half-space: its lowest core vertices, each with depth radius - height,
+    reduced to the P slots; the lowest vertex alone when none is within the margin."""
+    a, pose_a, b, pose_b = cast_pair(a, pose_a, b, pose_b)
+    plane_first = isinstance(a, HalfSpace)
+    plane, plane_pose, shape, shape_pose = (a, pose_a, b, pose_b) if plane_first else (
+        b, pose_b, a, pose_a)
+    rotation, translation = relative_pose(plane_pose, shape_pose)
+    vertices = rotate(rotation, shape.vertices) + translation  # in the plane's frame
+    heights = dot(vertices, plane.normal) - plane.offset
+    radius = jnp.zeros((), heights.dtype) if shape.radius is None else shape.radius
+    depths = radius - heights
+    # Midway between the shape's surface (the vertex moved down by the radius) and the plane.
+    points = vertices - ((heights + radius) / 2)[:, None] * plane.normal
+    size = jnp.max(jnp.abs(vertices)) + jnp.abs(plane.offset) + radius
+    tol = _LENGTH_TOLERANCE * jnp.finfo(heights.dtype).eps * size
+    margin = jnp.asarray(margin, heights.dtype)
+    near = shape.vertex_mask & (depths >= -margin - tol)
+    if plane.dim == 2:
+        across = dot(vertices, jnp.stack([-plane.normal[1], plane.normal[0]]))[:, None]
+        chosen, kept = _two_widest(across[:, 0], depths, near, tol, size)
+        candidates = _Candidates(points[chosen], depths[chosen], kept, across[chosen])
+    else:
+        first, second = orthonormal_basis(plane.normal)
+        across = jnp.stack([dot(vertices, first), dot(vertices, second)], axis=-1)
+        candidates = _reduce(_Candidates(points, depths, near, across), tol, size)
+    lowest = jnp.argmax(where(shape.vertex_mask, depths, -jnp.inf))
+    deepest = depths[lowest]
+    slots = candidates.valid.shape[0]
+    single = ~jnp.any(candidates.valid)
+    first_slot = jnp.arange(slots) == 0
+    points = where(single, points[lowest][None], candidates.points)
+    valid = where(single, first_slot & (deepest >= -margin), candidates.valid)
+    depths = where(single, deepest, candidates.depths)
+    # Invalid slots copy slot 0, which always holds finite values.
+    points = where(valid[:, None] | first_slot[:, None], points, points[0])
+    depths = where(valid | first_slot, depths, depths[0])
+    to_world = lambda point: rotate(plane_pose.rotation, point) + plane_pose.translation  # noqa: E731
+    outward = rotate(plane_pose.rotation, plane.normal)
+    normal = outward if plane_first else -outward
+    details = _Details(jnp.array(not plane_first), normal, -normal, single, deepest)
+    return Contacts(points=to_world(points), depths=depths, normal=normal, valid=valid), details
+
+
+def _two_widest(across, depths, valid, tol, size):
+    """2D reduction to 2 of many candidates: the deepest (depths within what a tilt of
+    _TIE_ANGLE across the shapes explains count as equal, the tie going to the one farthest
+    along the line) and the farthest from it; indices and which of the two are valid."""
+    deepest = jnp.max(where(valid, depths, -jnp.inf))
+    tied = valid & (depths >= deepest - tol - _TIE_ANGLE * 2 * size)
+    first = jnp.argmax(where(tied, across, -jnp.inf))
+    distance = where(valid, jnp.abs(across - across[first]), -1.0)
+    second = jnp.argmax(distance)
+    return jnp.stack([first, second]), jnp.stack([valid[first],
+                                                  valid[first] & (distance[second] > tol)])
+
+
+def _frame(pair: PairFrame, axis, margin, radii) -> _Frame:
+    size = (jnp.maximum(jnp.max(jnp.abs(pair.a.vertices)), jnp.max(jnp.abs(pair.b.vertices)))
+            + radii)
     tol = _LENGTH_TOLERANCE * jnp.finfo(pair.dtype).eps * size
     axis, b_vertices, size, tol = materialize((axis, pair.b_vertices, size, tol))
     return _Frame(axis, b_vertices, pair.rotation, size, tol, jnp.asarray(margin, pair.dtype))
@@ -267,18 +369,21 @@ def _hull_contacts(a: Polytope, b: Polytope, frame: _Frame):
         _hull_face(a, a.vertices, a.edge_face_normals, frame.normal, frame.tol),
         _hull_face(b, frame.b_vertices, b_normals, -frame.normal, frame.tol)))
     clipped = _clip_faces(face_a, face_b, frame.normal, frame.tol)
+    parallel = _parallel_segments(face_a, face_b, frame.normal, frame.tol)
+    clipped = jax.tree.map(lambda *groups: jnp.concatenate(groups), clipped, parallel)
     candidates = _reduce(materialize(_keep_near(clipped, frame)), frame.tol, frame.size)
-    edge_edge = jnp.minimum(chord(face_a.normal, frame.normal),
-                            chord(face_b.normal, -frame.normal)) > _FACE_ANGLE
+    edge_edge = (jnp.minimum(chord(face_a.normal, frame.normal),
+                             chord(face_b.normal, -frame.normal)) > _FACE_ANGLE
+                 ) & ~jnp.any(parallel.valid)
     return candidates, (*edge_a, *edge_b), edge_edge, face_a, face_b
 
 
-def _assemble(candidates: _Candidates, edges, edge_edge, depth, frame: _Frame):
-    """Points (a's frame), depths and validity of the P slots: the candidates, or one point
-    from the closest points of two edges (edge-edge, or no candidate), with `depth`.
-    Returns them and whether the single point was used."""
+def _assemble(candidates: _Candidates, single_point, edge_edge, depth, frame: _Frame):
+    """Points (a's frame), depths and validity of the P slots: the candidates, or
+    `single_point` (edge-edge, or no candidate) with `depth`. Returns them and whether the
+    single point was used."""
     single = edge_edge | ~jnp.any(candidates.valid)
-    single_point, candidates = materialize((_closest_midpoint(*edges), candidates))
+    single_point, candidates = materialize((single_point, candidates))
     points = where(single, single_point[None], candidates.points)
     depths = where(single, depth, candidates.depths)
     first = jnp.arange(depths.shape[0]) == 0
@@ -411,7 +516,12 @@ def _face_slots(shape: Polytope, ends, best, normal) -> _Face:
     centroid = jnp.sum(where(valid[:, None], start + end, 0.0), axis=0) / (2 * count)
     # Each edge runs counter-clockwise about the normal if its outward side faces away from
     # the centroid; swapping the others makes every corner start exactly one edge.
-    forward = (dot(cross(end - start, normal), start - centroid) > 0)[:, None]
+    outward = dot(cross(end - start, normal), start - centroid)
+    # A segment core's face is its segment twice (a two-sided face): the centroid lies on
+    # both edges, and they are made to run opposite ways by their order instead.
+    length = jnp.sqrt(dot(end - start, end - start) * dot(start - centroid, start - centroid))
+    on_line = jnp.abs(outward) <= 64 * jnp.finfo(ends.dtype).eps * length
+    forward = where(on_line, jnp.arange(valid.shape[0]) % 2 == 0, outward > 0)[:, None]
     start, end = where(forward, start, end), where(forward, end, start)
     start = where(valid[:, None], start, centroid)
     end = where(valid[:, None], end, centroid)
@@ -458,7 +568,12 @@ def _corners_inside(face: _Face, start, other: _Face, other_start, other_edge, n
     point is above b's along the normal)."""
     height, ok = _lift(other, face.start, normal)
     sense = where(dot(other.normal, normal) > 0, 1.0, -1.0)
-    valid = face.valid & ok & _inside(other_start, other_edge, other, sense, start, tol)
+    # Only a polygon (3 edges or more) has an inside: a segment core's two-sided face or a
+    # point core's empty one contains no corner of the other face (where such a corner lies
+    # on the segment, it is a crossing of the two faces' edges).
+    polygon = jnp.sum(other.valid) >= 3
+    valid = (face.valid & ok & polygon
+             & _inside(other_start, other_edge, other, sense, start, tol))
     return _Candidates(points=face.start + (height / 2)[:, None] * normal,
                        depths=-side * height, valid=valid, across=start)
 
@@ -483,6 +598,35 @@ def _crossings(face_a: _Face, face_b: _Face, start_a, edge_a, start_b, edge_b,
                        depths=dot(on_a - on_b, normal).reshape(-1), valid=ok.reshape(-1),
                        across=(start_a[:, None] + along_a[..., None] * edge_a[:, None])
                        .reshape(-1, 2))
+
+
+def _parallel_segments(face_a: _Face, face_b: _Face, normal, tol) -> _Candidates:
+    """Two candidates where both faces are segments (two-sided faces of capsule cores) that
+    are parallel seen along the normal (within _FACE_ANGLE): the ends of the interval where
+    they overlap, lifted onto each segment (as `_clip_segments` in 2D); none otherwise."""
+    start_a, end_a, start_b, end_b = face_a.start[0], face_a.end[0], face_b.start[0], face_b.end[0]
+    across_a = (end_a - start_a) - dot(end_a - start_a, normal) * normal
+    across_b = (end_b - start_b) - dot(end_b - start_b, normal) * normal
+    length_a = jnp.sqrt(dot(across_a, across_a))
+    length_b = jnp.sqrt(dot(across_b, across_b))
+    crossing = jnp.sqrt(dot(cross(across_a, across_b), cross(across_a, across_b)))
+    segments = (jnp.sum(face_a.valid) == 2) & (jnp.sum(face_b.valid) == 2)
+    parallel = segments & (crossing <= _FACE_ANGLE * length_a * length_b) & (length_a > tol)
+    tangent = safe_divide(across_a, length_a, length_a > tol)
+    ends_a = jnp.stack([dot(start_a, tangent), dot(end_a, tangent)])
+    ends_b = jnp.stack([dot(start_b, tangent), dot(end_b, tangent)])
+    low = jnp.maximum(jnp.min(ends_a), jnp.min(ends_b))
+    high = jnp.minimum(jnp.max(ends_a), jnp.max(ends_b))
+    middle = (low + high) / 2
+    across = jnp.stack([jnp.minimum(low, middle), jnp.maximum(high, middle)])
+    on_a = _point_at(face_a, across, tangent, normal, 1.0)
+    on_b = _point_at(face_b, across, tangent, normal, -1.0)
+    first, second = orthonormal_basis(normal)
+    flat = lambda p: jnp.stack([dot(p, first), dot(p, second)], axis=-1)  # noqa: E731
+    valid = parallel & (high >= low - tol) & jnp.stack([jnp.array(True),
+                                                        across[1] - across[0] > tol])
+    return _Candidates(points=(on_a + on_b) / 2, depths=dot(on_a - on_b, normal), valid=valid,
+                       across=flat((on_a + on_b) / 2))
 
 
 # --------------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ import jax
 from jaxsat import _batching, _contacts, _queries
 from jaxsat._broadphase import broad_phase, world_aabbs
 from jaxsat._poses import Pose
-from jaxsat._shapes import Polytope, require_sharp
+from jaxsat._shapes import Polytope
 
 __all__ = ["SceneCollisions", "collide"]
 
@@ -58,8 +58,6 @@ def _check_scene(shapes, poses, level):
                          f"got batch shape {shapes.batch_shape}")
     if level not in LEVELS:
         raise ValueError(f"level must be one of {LEVELS}, got {level!r}")
-    if level == "contacts":
-        require_sharp(shapes, "shapes", 'collide(..., level="contacts")')
 
 
 def _penetration_and_contacts(a, pose_a, b, pose_b):

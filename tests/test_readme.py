@@ -44,9 +44,10 @@ def test_readme_signed_distance_example_runs():
 
 @pytest.mark.slow
 def test_readme_rounded_example_runs():
-    distance, depth, overlap = _run_example(2, "rounded-shapes")[0].split()
+    distance, depth, overlap, points, resting = _run_example(2, "rounded-shapes")[0].split()
     assert abs(float(distance) - 1.25) < 1e-6 and abs(float(depth) - 0.1) < 1e-6
     assert overlap == "True"
+    assert points == "2" and abs(float(resting) - 0.05) < 1e-6
 
 
 def test_quickstart_commands():

@@ -236,6 +236,70 @@ def test_rounded_queries_match_the_cores_oracle_minus_the_radii(names, dtype):
     assert np.all(smooth >= exact - bound * SMOOTHING - tolerance)
 
 
+CONTACT_MARGIN = 0.1
+
+
+def _contacts_query(a, params_a, b, params_b):
+    return jaxsat.contacts(a, harness.make_pose(params_a), b, harness.make_pose(params_b),
+                           margin=CONTACT_MARGIN)
+
+
+_batched_contacts = jax.jit(jax.vmap(_contacts_query), compiler_options=harness.FAST_COMPILE)
+
+
+@pytest.mark.parametrize(("names", "dtype"), POOL_CASES)
+def test_rounded_contacts_follow_the_cores_oracle(names, dtype):
+    """contacts on the mixed pools (margin 0.1), against the oracle signed distance sd of each
+    pair: no valid point when -sd < -margin, at least one when overlapping; every depth in
+    [-margin, -sd], the deepest equal to -sd (up to the documented 2e-3 x size for near-flat
+    faces); a unit normal. Every point m is the midpoint of m + depth/2 n and m - depth/2 n,
+    which lie on or inside the rounded shapes (at most r_a from a's core, r_b from b's), and
+    on the surfaces (at r_a and r_b) at the deepest point."""
+    case = rounded_pairs(*names, dtype)
+    pairs, pool_a, pool_b = case.pairs, case.pool_a, case.pool_b
+    result = harness.run_batched(_batched_contacts, len(pairs), *pairs.inputs())
+    world_a, world_b = harness.world_points(pairs)
+    failures, with_points = [], 0
+    for i in range(len(pairs)):
+        index_a, index_b = pairs.index_a[i], pairs.index_b[i]
+        ra, rb = pool_a.radii[index_a], pool_b.radii[index_b]
+        tol = 10 * harness.RELATIVE_TOLERANCE[dtype] * case.size[i]
+        depth = -case.expected[i]
+        valid = result.valid[i]
+        points = result.points[i][valid].astype(np.float64)
+        depths = result.depths[i][valid].astype(np.float64)
+        normal = result.normal[i].astype(np.float64)
+        problems = []
+        if depth < -CONTACT_MARGIN - tol and valid.any():
+            problems.append("valid points beyond the margin")
+        if depth > tol and not valid.any():
+            problems.append("overlapping without a point")
+        if abs(np.linalg.norm(normal) - 1) > harness.UNIT_TOLERANCE[dtype]:
+            problems.append(f"normal {normal}")
+        if len(depths):
+            with_points += 1
+            if np.min(depths) < -CONTACT_MARGIN - tol or np.max(depths) > depth + tol:
+                problems.append(f"depths {depths} outside [-margin, {depth}]")
+            if np.max(depths) < depth - tol - 2e-3 * case.size[i]:
+                problems.append(f"deepest {np.max(depths)} < {depth}")
+        for point, point_depth in zip(points, depths, strict=True):
+            on_a = distance_to_core(point + point_depth / 2 * normal, world_a[i],
+                                    pool_a.degenerate(index_a))
+            on_b = distance_to_core(point - point_depth / 2 * normal, world_b[i],
+                                    pool_b.degenerate(index_b))
+            if on_a > ra + tol or on_b > rb + tol:
+                problems.append(f"surface points {on_a}, {on_b} from the cores (r {ra}, {rb})")
+            if abs(point_depth - depth) <= tol and not (abs(on_a - ra) <= tol
+                                                         and abs(on_b - rb) <= tol):
+                problems.append(f"deepest point's surface points {on_a}, {on_b} from the cores "
+                                f"(r {ra}, {rb})")
+        if problems:
+            failures.append(f"{pool_a.kinds[index_a]}-{pool_b.kinds[index_b]} pair {i}: "
+                            + "; ".join(problems[:3]))
+    assert not failures, f"{len(failures)} of {len(pairs)}:\n" + "\n".join(failures[:8])
+    assert with_points >= len(pairs) // 4
+
+
 def _pose(dim, translation, quaternion=(1.0, 0.0, 0.0, 0.0), dtype=np.float64):
     """A 3D pose, or a 2D pose at angle 0 (the quaternion is then unused)."""
     translation = np.asarray(translation, dtype)
@@ -281,7 +345,10 @@ def _degenerate_query(a, pose_a, b, pose_b):
     gradients = [jax.grad(lambda *args, smoothing=smoothing: jaxsat.signed_distance(
         *args, smoothing=smoothing), argnums=(0, 1, 2, 3), allow_int=True)(a, pose_a, b, pose_b)
         for smoothing in (None, 0.05)]
-    return found, depth, gradients
+    manifold = jaxsat.contacts(a, pose_a, b, pose_b, margin=0.1)
+    depth_gradient = jax.grad(lambda pose: jaxsat.contacts(a, pose_a, b, pose, margin=0.1)
+                              .depths[0])(pose_b)
+    return found, depth, gradients, (manifold, depth_gradient)
 
 
 _batched_degenerate_query = jax.jit(jax.vmap(_degenerate_query),
@@ -299,7 +366,8 @@ def test_degenerate_rounded_pairs_are_finite_and_exact(dim, dtype):
     and end-to-end segments, zero radius and zero length (all cases of one dimension in one
     batch): the value by hand, a unit normal, penetration = minus the value, finite exact and
     smooth gradients in every input, unit-bounded in b's translation; intersects by the
-    sign."""
+    sign; contacts finite, with closest_points' normal and the deepest depth minus the value,
+    and a finite gradient of the first depth."""
     names = [name for name, case in DEGENERATE_CASES.items() if case[0].dim == dim]
     cast = lambda shape: jax.tree.map(  # noqa: E731
         lambda leaf: leaf.astype(dtype) if jnp.issubdtype(leaf.dtype, jnp.floating) else leaf,
@@ -310,8 +378,10 @@ def test_degenerate_rounded_pairs_are_finite_and_exact(dim, dtype):
     poses_a = [_pose(dim, case[1], dtype=dtype) for case in cases]
     poses_b = [_pose(dim, case[3], case[4], dtype=dtype) for case in cases]
     stack_poses = lambda poses: jax.tree.map(lambda *leaves: jnp.stack(leaves), *poses)  # noqa: E731
-    found, depth, gradients = _batched_degenerate_query(a, stack_poses(poses_a), b,
-                                                        stack_poses(poses_b))
+    found, depth, gradients, (manifold, depth_gradient) = _batched_degenerate_query(
+        a, stack_poses(poses_a), b, stack_poses(poses_b))
+    for leaf in jax.tree.leaves((manifold, depth_gradient)):
+        assert np.all(np.isfinite(np.asarray(leaf))), "contacts"
     tolerance = 10 * harness.RELATIVE_TOLERANCE[dtype] * 3
     for i, name in enumerate(names):
         assert abs(float(found.signed_distance[i]) - cases[i][5]) <= tolerance, name
@@ -321,6 +391,14 @@ def test_degenerate_rounded_pairs_are_finite_and_exact(dim, dtype):
         # segment ends); the others by their sign.
         if cases[i][5] != 0 or name in EXACT_TOUCHES:
             assert bool(depth[1][i]) == (cases[i][5] <= 0), name
+        valid = np.asarray(manifold.valid[i])
+        assert valid.any() == (cases[i][5] <= 0.1), name  # within the margin
+        if not valid.any():
+            continue
+        deepest = float(np.max(np.asarray(manifold.depths[i])[valid]))
+        assert abs(deepest + cases[i][5]) <= tolerance, (name, deepest)
+        np.testing.assert_allclose(manifold.normal[i], found.normal[i], atol=tolerance,
+                                   err_msg=name)
     for smoothing, gradient in zip((None, 0.05), gradients, strict=True):
         for leaf in jax.tree.leaves(gradient):
             if jnp.issubdtype(leaf.dtype, jnp.floating):
@@ -397,8 +475,9 @@ def test_world_aabbs_grow_by_the_radius():
 
 @pytest.mark.slow
 def test_collide_finds_every_overlapping_rounded_pair():
-    """A 2D scene of circles, capsules and squares: collide's pairs (levels intersects and
-    penetration) are exactly the pairs with signed distance <= 0, with depth = minus it."""
+    """A 2D scene of circles, capsules and squares: collide's pairs (every level) are exactly
+    the pairs with signed distance <= 0, with depth = minus it and, at level contacts, the
+    pair's own contacts."""
     rng = np.random.default_rng(11)
     makers = [lambda: jaxsat.circle(rng.uniform(0.1, 0.4)),
               lambda: jaxsat.capsule(rng.uniform(0.0, 0.5), rng.uniform(0.05, 0.2), dim=2),
@@ -415,29 +494,30 @@ def test_collide_finds_every_overlapping_rounded_pair():
     expected = {(int(i), int(j)): float(d) for i, j, d in zip(rows, cols, brute, strict=True)
                 if d <= 0}
     assert len(expected) >= 5
-    for level in ("intersects", "penetration"):
+    for level in ("intersects", "penetration", "contacts"):
         scene = jaxsat.collide(shapes, poses, capacity=256, level=level)
         assert int(scene.overflow) == 0
         hits = np.asarray(scene.colliding)
         found = {tuple(sorted(map(int, pair))): index
                  for index, pair in enumerate(np.asarray(scene.pairs)) if hits[index]}
         assert set(found) == set(expected), level
-        if level == "penetration":
+        if level != "intersects":
             for pair, index in found.items():
                 assert abs(float(scene.depth[index]) + expected[pair]) <= 1e-5, pair
+    for pair, index in found.items():
+        own = jaxsat.contacts(*take_pair((shapes, poses), pair[0]),
+                              *take_pair((shapes, poses), pair[1]))
+        mine = take_pair(scene.contacts, index)
+        for got, wanted in zip(jax.tree.leaves(mine), jax.tree.leaves(own), strict=True):
+            np.testing.assert_allclose(got, wanted, atol=1e-5, err_msg=str(pair))
+        assert np.asarray(mine.valid).any()
 
 
 @pytest.mark.parametrize("call", [
-    lambda: jaxsat.contacts(jaxsat.sphere(1.0), jaxsat.pose3(np.zeros(3), np.array([1.0, 0, 0, 0])),
-                            jaxsat.box([1.0] * 3),
-                            jaxsat.pose3(np.zeros(3), np.array([1.0, 0, 0, 0]))),
-    lambda: jaxsat.collide(jaxsat.stack([jaxsat.circle(1.0)] * 2),
-                           jax.vmap(jaxsat.pose2)(jnp.zeros(2), jnp.zeros(2), jnp.zeros(2)),
-                           capacity=4, level="contacts"),
     lambda: jaxsat.compound([jaxsat.circle(1.0), jaxsat.box([1.0, 1.0])]),
     lambda: jaxsat.compound_intersects(jaxsat.capsule(1.0, 0.1, dim=2), jaxsat.pose2(0.0, 0.0, 0.0),
                                        jaxsat.box([1.0, 1.0]), jaxsat.pose2(0.0, 0.0, 0.0)),
-], ids=["contacts", "collide-contacts", "compound", "compound-query"])
+], ids=["compound", "compound-query"])
 def test_queries_without_rounded_support_say_so(call):
     with pytest.raises(TypeError, match="does not take rounded shapes"):
         call()
@@ -553,8 +633,10 @@ def test_halfspace_constructor_normalises_and_rejects_bad_input():
     origin = jaxsat.pose2(0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match="both half-spaces"):
         jaxsat.signed_distance(ground, origin, ground, origin)
+    with pytest.raises(ValueError, match="both half-spaces"):
+        jaxsat.contacts(ground, origin, ground, origin)
     with pytest.raises(TypeError, match="Polytope"):
-        jaxsat.contacts(ground, origin, jaxsat.box([1.0, 1.0]), origin)
+        jaxsat.compound_intersects(ground, origin, jaxsat.box([1.0, 1.0]), origin)
 
 
 def test_a_face_resting_on_a_halfspace_has_finite_unit_gradients():
