@@ -28,6 +28,7 @@ from jaxsat._queries import closest_points as closest_points
 from jaxsat._queries import intersects as intersects
 from jaxsat._queries import penetration as penetration
 from jaxsat._queries import signed_distance as signed_distance
+from jaxsat._scene import PlaneCollisions as PlaneCollisions
 from jaxsat._scene import SceneCollisions as SceneCollisions
 from jaxsat._scene import collide as collide
 from jaxsat._shapes import CappedHull as CappedHull
@@ -55,6 +56,7 @@ __all__ = [
     "Contacts",
     "HalfSpace",
     "Penetration",
+    "PlaneCollisions",
     "Polytope",
     "Pose",
     "SceneCollisions",

@@ -3,6 +3,10 @@
 The broad phase (`broad_phase`, a hashed uniform grid over world AABBs) keeps the pairs whose
 boxes overlap, in a static number of slots; the narrow phase runs on those slots only, at the
 level of work the caller asks for: a yes/no answer, depth and normal, or full contacts.
+
+Half-spaces (a ground, walls) have no bounding box: they never enter the grid (one would make
+it as coarse as the scene), and every shape is tested against every one of them instead, in
+one dense (N, P) batch, at the same level.
 """
 
 from __future__ import annotations
@@ -11,16 +15,36 @@ import dataclasses
 import functools
 
 import jax
+import jax.numpy as jnp
 
 from jaxsat import _batching, _contacts, _queries
 from jaxsat._broadphase import broad_phase, world_aabbs
+from jaxsat._halfspace import HalfSpace
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
-__all__ = ["SceneCollisions", "collide"]
+__all__ = ["PlaneCollisions", "SceneCollisions", "collide"]
 
 LEVELS = ("intersects", "penetration", "contacts")
 """Levels of work, cheapest first; each one skips the work of the next."""
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class PlaneCollisions:
+    """Every shape of a scene against every half-space given to `collide`: (N, P) entries,
+    shape i as a and half-space p as b."""
+
+    colliding: jax.Array
+    """(N, P) bool: shape i overlaps or touches half-space p."""
+    depth: jax.Array | None
+    """(N, P) float: penetration depth (minus the signed distance); None at level
+    "intersects"."""
+    normal: jax.Array | None
+    """(N, P, D) float: unit normal from the shape towards the half-space (minus the plane's
+    outward normal); None at level "intersects"."""
+    contacts: _contacts.Contacts | None
+    """Contacts with leading (N, P) axes; None below level "contacts"."""
 
 
 @jax.tree_util.register_dataclass
@@ -48,6 +72,8 @@ class SceneCollisions:
     """() int32: number of broad-phase pairs, including any that did not fit."""
     overflow: jax.Array
     """() int32: broad-phase pairs that did not fit in `capacity`; 0 means nothing was missed."""
+    planes: PlaneCollisions | None = None
+    """Every shape against every half-space; None when `collide` was given none."""
 
 
 def _check_scene(shapes, poses, level):
@@ -58,6 +84,49 @@ def _check_scene(shapes, poses, level):
                          f"got batch shape {shapes.batch_shape}")
     if level not in LEVELS:
         raise ValueError(f"level must be one of {LEVELS}, got {level!r}")
+
+
+def _as_planes(planes, plane_poses, dim: int, dtype) -> tuple[HalfSpace, Pose]:
+    """The half-spaces and their poses stacked to (P,): from one HalfSpace (batched or not)
+    or a list of them; poses likewise, or None for identity poses (planes in the world)."""
+    def stacked(value, kind, name):
+        if isinstance(value, kind):
+            batched = value.translation.ndim > 1 if kind is Pose else bool(value.batch_shape)
+            return value if batched else jax.tree.map(lambda leaf: leaf[None], value)
+        if isinstance(value, (list, tuple)) and value and all(
+                isinstance(entry, kind) for entry in value):
+            return jax.tree.map(lambda *leaves: jnp.stack(leaves), *value)
+        raise TypeError(f"{name} must be a jaxsat.{kind.__name__} or a list of them, got "
+                        f"{type(value).__name__}")
+
+    planes = stacked(planes, HalfSpace, "planes")
+    if len(planes.batch_shape) != 1:
+        raise ValueError(f"planes must be stacked along one axis (P,), got {planes.batch_shape}")
+    if planes.dim != dim:
+        raise ValueError(f"planes are {planes.dim}D and shapes {dim}D")
+    count = planes.batch_shape[0]
+    if plane_poses is None:
+        identity = Pose.identity(dim, dtype)
+        plane_poses = jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, (count, *leaf.shape)),
+                                   identity)
+    plane_poses = stacked(plane_poses, Pose, "plane_poses")
+    if plane_poses.translation.shape != (count, dim):
+        raise ValueError(f"plane_poses must be {count} {dim}D poses, one per half-space, got "
+                         f"translations of shape {plane_poses.translation.shape}")
+    return planes, plane_poses
+
+
+def _plane_phase(level, shapes, poses, planes, plane_poses) -> PlaneCollisions:
+    """Every shape against every half-space at `level`, in one dense batch."""
+    query = {"intersects": _queries.intersects, "penetration": _queries.penetration,
+             "contacts": _penetration_and_contacts}[level]
+    per_plane = jax.vmap(query, in_axes=(None, None, 0, 0))
+    result = jax.vmap(per_plane, in_axes=(0, 0, None, None))(shapes, poses, planes, plane_poses)
+    if level == "intersects":
+        return PlaneCollisions(colliding=result, depth=None, normal=None, contacts=None)
+    hit, contact_set = (result, None) if level == "penetration" else result
+    return PlaneCollisions(colliding=hit.depth >= 0, depth=hit.depth, normal=hit.normal,
+                           contacts=contact_set)
 
 
 def _penetration_and_contacts(a, pose_a, b, pose_b):
@@ -78,7 +147,8 @@ def _narrow_phase(level, shapes, poses, pairs, chunk_size, devices):
                                              "chunk_size", "devices"))
 def collide(shapes: Polytope, poses: Pose, *, capacity: int, level: str = "penetration",
             candidate_capacity: int | None = None, groups=None, masks=None, body_ids=None,
-            chunk_size: int | None = None, devices=None) -> SceneCollisions:
+            chunk_size: int | None = None, devices=None, planes=None,
+            plane_poses=None) -> SceneCollisions:
     """Every colliding pair of a scene of N shapes, equal to the brute-force all-pairs answer.
 
     Args:
@@ -90,12 +160,23 @@ def collide(shapes: Polytope, poses: Pose, *, capacity: int, level: str = "penet
       candidate_capacity, groups, masks, body_ids: see `broad_phase`.
       chunk_size, devices: how the narrow phase runs over the slots (see `query_pairs`);
         `devices` is an int or a tuple of devices (hashable: it is static).
+      planes: half-spaces (a ground, walls): one HalfSpace, batched (P,) or not, or a list of
+        them. They stay out of the broad phase; every shape is tested against each one at
+        `level` (the result's `planes` field; groups and masks do not apply to them).
+      plane_poses: their poses, as one Pose (batched or not) or a list; None places them in
+        the world frame as given.
 
     Returns:
       SceneCollisions. The function is jitted: capacity, level, candidate_capacity,
       chunk_size and devices are static, so changing them recompiles.
     """
     _check_scene(shapes, poses, level)
+    plane_result = None
+    if planes is not None:
+        planes, plane_poses = _as_planes(planes, plane_poses, shapes.dim, shapes.dtype)
+        plane_result = _plane_phase(level, shapes, poses, planes, plane_poses)
+    elif plane_poses is not None:
+        raise ValueError("plane_poses given without planes")
     low, high = world_aabbs(shapes, poses)
     candidates = broad_phase(low, high, capacity=capacity, candidate_capacity=candidate_capacity,
                              groups=groups, masks=masks, body_ids=body_ids)
@@ -109,4 +190,4 @@ def collide(shapes: Polytope, poses: Pose, *, capacity: int, level: str = "penet
     return SceneCollisions(pairs=candidates.pairs, valid=candidates.valid,
                            colliding=candidates.valid & touching, depth=depth, normal=normal,
                            contacts=contact_set, count=candidates.count,
-                           overflow=candidates.overflow)
+                           overflow=candidates.overflow, planes=plane_result)

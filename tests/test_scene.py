@@ -131,6 +131,45 @@ def test_collide_vmaps_over_scenes():
         assert set(_colliding(one)) == set(_brute_force(scene_shapes, scene_poses))
 
 
+def test_collide_with_half_spaces():
+    """A ground and a wall given as planes: every shape against each at every level, equal to
+    the deepest world vertex below each plane (NumPy); the shape pairs and the broad-phase
+    count are those of the scene without planes (the planes never enter the grid)."""
+    rng = np.random.default_rng(8)
+    shapes, poses = _scene_3d(rng, 40, "boxes", 4.0)
+    lowered = poses.translation.at[:, 2].multiply(0.1)  # near the ground
+    poses = jaxsat.Pose(lowered, poses.rotation)
+    normals = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
+    offsets = np.array([0.0, -3.5])  # the ground z <= 0, the wall x >= 3.5
+    planes = [jaxsat.halfspace(n, o) for n, o in zip(normals, offsets, strict=True)]
+    world = (np.einsum("nij,nvj->nvi", np.asarray(poses.rotation), np.asarray(shapes.vertices))
+             + np.asarray(poses.translation)[:, None])
+    expected = np.max(offsets[None, None] - world @ normals.T, axis=1)  # (N, P)
+    plain = jaxsat.collide(shapes, poses, capacity=256)
+    assert plain.planes is None
+    for level in ("intersects", "penetration", "contacts"):
+        result = jaxsat.collide(shapes, poses, capacity=256, level=level, planes=planes)
+        np.testing.assert_array_equal(result.planes.colliding, expected >= 0)
+        assert int(result.count) == int(plain.count)
+        assert set(_colliding(result)) == set(_colliding(plain))
+        if level == "intersects":
+            assert result.planes.depth is None
+            continue
+        np.testing.assert_allclose(result.planes.depth, expected, atol=1e-9)
+        np.testing.assert_allclose(result.planes.normal,
+                                   np.broadcast_to(-normals, (40, 2, 3)), atol=1e-12)
+        if level == "contacts":
+            touching = np.asarray(result.planes.contacts.valid).any(axis=-1)
+            np.testing.assert_array_equal(touching, expected >= 0)
+    assert 5 <= np.sum(expected[:, 0] >= 0) < 40 and np.sum(expected[:, 1] >= 0) >= 1
+    # One batched HalfSpace with explicit poses gives the same answer.
+    stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves), *planes)
+    identity = jax.vmap(jaxsat.pose3)(jnp.zeros((2, 3)), jnp.tile(jnp.array([1.0, 0, 0, 0]),
+                                                                   (2, 1)))
+    again = jaxsat.collide(shapes, poses, capacity=256, planes=stacked, plane_poses=identity)
+    np.testing.assert_allclose(again.planes.depth, expected, atol=1e-9)
+
+
 def test_collide_rejects_bad_input():
     shapes, poses = _scene_2d(np.random.default_rng(0), 4, 1.0)
     with pytest.raises(ValueError, match="level"):
@@ -141,6 +180,16 @@ def test_collide_rejects_bad_input():
         jaxsat.collide(shapes, poses, capacity=-1)
     with pytest.raises(TypeError, match="Polytope"):
         jaxsat.collide(poses, shapes, capacity=8)
+    ground = jaxsat.halfspace([0.0, 1.0])
+    with pytest.raises(TypeError, match="planes must be a jaxsat.HalfSpace"):
+        jaxsat.collide(shapes, poses, capacity=8, planes=[jaxsat.box([1.0, 1.0])])
+    with pytest.raises(ValueError, match="planes are 3D and shapes 2D"):
+        jaxsat.collide(shapes, poses, capacity=8, planes=jaxsat.halfspace([0.0, 0.0, 1.0]))
+    with pytest.raises(ValueError, match="plane_poses given without planes"):
+        jaxsat.collide(shapes, poses, capacity=8, plane_poses=jaxsat.pose2(0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="one per half-space"):
+        jaxsat.collide(shapes, poses, capacity=8, planes=[ground, ground],
+                       plane_poses=jaxsat.pose2(0.0, 0.0, 0.0))
 
 
 @pytest.mark.slow
