@@ -37,6 +37,7 @@ from jaxsat._shapes import box as box
 from jaxsat._shapes import cap_hull as cap_hull
 from jaxsat._shapes import capsule as capsule
 from jaxsat._shapes import circle as circle
+from jaxsat._shapes import moved as moved
 from jaxsat._shapes import polygon as polygon
 from jaxsat._shapes import polyhedron as polyhedron
 from jaxsat._shapes import regular_polygon as regular_polygon
@@ -77,6 +78,7 @@ __all__ = [
     "intersects",
     "load_mesh",
     "mesh_compound",
+    "moved",
     "penetration",
     "polygon",
     "polyhedron",

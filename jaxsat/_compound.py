@@ -10,6 +10,10 @@ The queries run the convex narrow phase on every pair of pieces (vmapped over th
 pairs) and reduce: the shapes intersect iff some pair does, and the reported penetration is
 the deepest pair's. Padding pieces (piece_mask False) repeat piece 0, so they are valid
 geometry that computes finite values, and are masked out of both reductions.
+
+Pieces may be rounded (spheres, capsules, rounded polytopes; a compound of them is rounded,
+its sharp pieces with radius 0), and either side of a query may be a half-space, which
+counts as a single piece.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import numpy as np
 
 from jaxsat import _shapes as shapes
 from jaxsat._decompose import decompose
+from jaxsat._halfspace import HalfSpace
 from jaxsat._kernels import where
 from jaxsat._pair import check_one_pair, compiled_query
 from jaxsat._poses import Pose
@@ -88,7 +93,6 @@ def _as_piece(piece, index: int, max_vertices: int | None) -> Polytope:
     if isinstance(piece, Polytope):
         if piece.batch_shape:
             raise ValueError(f"piece {index} is a batched Polytope; pass unbatched pieces")
-        shapes.require_sharp(piece, f"piece {index}", "compound")
         return piece
     if isinstance(piece, Compound):
         raise TypeError(f"piece {index} is a Compound; pass its convex pieces instead")
@@ -195,7 +199,6 @@ def _as_compound(shape, name: str) -> Compound:
     if isinstance(shape, Compound):
         return shape
     if isinstance(shape, Polytope):
-        shapes.require_sharp(shape, name, "a compound query")
         # Plain indexing and a NumPy mask: no eager JAX op for concrete inputs.
         pieces = jax.tree.map(lambda leaf: leaf[None], shape)
         return Compound(pieces=pieces, piece_mask=np.ones(shape.batch_shape + (1,), bool))
@@ -252,9 +255,22 @@ def _check_query(a: Compound, pose_a: Pose, b: Compound, pose_b: Pose) -> None:
     check_one_pair(a, pose_a, b, pose_b)
 
 
+def _as_side(shape, name: str) -> Compound:
+    """A query's side as a compound; a half-space as a one-piece one (its fields gain a
+    leading axis of 1, so that the piece pairs vmap over it like over any pieces)."""
+    if isinstance(shape, HalfSpace):
+        if shape.batch_shape:
+            raise ValueError(f"{name} is a batched HalfSpace; use jax.vmap for batches")
+        return Compound(pieces=jax.tree.map(lambda leaf: leaf[None], shape),
+                        piece_mask=np.ones((1,), bool))
+    return _as_compound(shape, name)
+
+
 def _prepare(a, pose_a, b, pose_b) -> tuple[Compound, Compound, jax.Array]:
     """Both shapes as compounds, after the static checks, and the (P_a, P_b) real-pair mask."""
-    a, b = _as_compound(a, "a"), _as_compound(b, "b")
+    if isinstance(a, HalfSpace) and isinstance(b, HalfSpace):
+        raise ValueError("a and b are both half-spaces; no query takes two")
+    a, b = _as_side(a, "a"), _as_side(b, "b")
     _check_query(a, pose_a, b, pose_b)
     return a, b, a.piece_mask[:, None] & b.piece_mask[None, :]
 
@@ -275,8 +291,8 @@ def compound_intersects(a: Compound | Polytope, pose_a: Pose, b: Compound | Poly
     """True where some real piece of a overlaps or touches some real piece of b.
 
     Args:
-      a, b: compounds (or plain Polytopes, taken as one-piece compounds) of one dimension,
-        unbatched; use jax.vmap for batches.
+      a, b: compounds (or plain Polytopes, sharp or rounded, taken as one-piece compounds) of
+        one dimension, or one HalfSpace; unbatched (use jax.vmap for batches).
       pose_a, pose_b: their poses.
 
     Returns:
@@ -298,8 +314,8 @@ def compound_penetration(a: Compound | Polytope, pose_a: Pose, b: Compound | Pol
     row-major (piece_a, piece_b) order. Gradients flow through the winning pair only.
 
     Args:
-      a, b: compounds (or plain Polytopes, taken as one-piece compounds) of one dimension,
-        unbatched; use jax.vmap for batches.
+      a, b: compounds (or plain Polytopes, sharp or rounded, taken as one-piece compounds) of
+        one dimension, or one HalfSpace; unbatched (use jax.vmap for batches).
       pose_a, pose_b: their poses.
 
     Returns:

@@ -14,8 +14,8 @@ from jaxsat import _geometry as geometry
 from jaxsat._kernels import where
 
 __all__ = ["CappedHull", "Polytope", "SizeClass", "box", "cap_hull", "capsule", "circle",
-           "float_dtype", "pad_and_stack", "polygon", "polyhedron", "regular_polygon",
-           "require_sharp", "ring_neighbours", "rounded", "size_class_for", "sphere", "stack"]
+           "float_dtype", "moved", "pad_and_stack", "polygon", "polyhedron", "regular_polygon",
+           "ring_neighbours", "rounded", "size_class_for", "sphere", "stack"]
 
 
 class SizeClass(NamedTuple):
@@ -133,15 +133,6 @@ class Polytope:
     def num_real_vertices(self) -> jax.Array:
         """() int32 (batch shape): how many vertices are real (traced)."""
         return jnp.sum(self.vertex_mask, axis=-1, dtype=jnp.int32)
-
-
-def require_sharp(shape, name: str, query: str) -> None:
-    """Raise TypeError if `shape` is rounded: for the queries that do not take rounded shapes
-    yet."""
-    if getattr(shape, "radius", None) is not None:
-        raise TypeError(f"{query} does not take rounded shapes (spheres, capsules, `rounded`) "
-                        f"yet; {name} has a radius. signed_distance, closest_points, "
-                        "penetration and intersects do")
 
 
 def ring_neighbours(index, count):
@@ -379,6 +370,38 @@ def rounded(shape: Polytope, radius) -> Polytope:
     r = _as_radius(radius)
     total = r if shape.radius is None else r + float(shape.radius)
     return dataclasses.replace(shape, radius=jnp.asarray(total, shape.dtype))
+
+
+def moved(shape: Polytope, pose) -> Polytope:
+    """`shape` with its geometry moved by the rigid motion `pose` (each point x to R x + t):
+    the same shape described in another frame, e.g. a piece placed in a compound's frame
+    (`compound([moved(sphere(0.3), pose3(...)), ...])`). Eager, on concrete values.
+
+    Raises:
+      TypeError: shape is not an unbatched Polytope, or pose is not an unbatched Pose of the
+        shape's dimension.
+    """
+    if not isinstance(shape, Polytope) or shape.batch_shape:
+        raise TypeError(f"shape must be an unbatched jaxsat.Polytope, got {type(shape).__name__}"
+                        + (f" with batch shape {shape.batch_shape}"
+                           if isinstance(shape, Polytope) else ""))
+    rotation = np.asarray(getattr(pose, "rotation", None), dtype=np.float64)
+    translation = np.asarray(getattr(pose, "translation", None), dtype=np.float64)
+    if rotation.shape != (shape.dim, shape.dim) or translation.shape != (shape.dim,):
+        raise TypeError(f"pose must be an unbatched {shape.dim}D jaxsat.Pose, got "
+                        f"{type(pose).__name__}")
+    dtype = shape.dtype
+    turn = lambda rows: jnp.asarray(np.asarray(rows, np.float64) @ rotation.T, dtype)  # noqa: E731
+    normals = np.asarray(shape.face_normals, np.float64) @ rotation.T
+    # Each face's extent moves by the translation's component along its normal.
+    extents = np.asarray(shape.face_extents, np.float64) + (normals @ translation)[:, None]
+    return dataclasses.replace(
+        shape,
+        vertices=jnp.asarray(np.asarray(shape.vertices, np.float64) @ rotation.T + translation,
+                             dtype),
+        face_normals=jnp.asarray(normals, dtype), face_extents=jnp.asarray(extents, dtype),
+        edge_directions=turn(shape.edge_directions),
+        edge_face_normals=turn(shape.edge_face_normals))
 
 
 class CappedHull(NamedTuple):

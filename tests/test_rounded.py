@@ -513,14 +513,125 @@ def test_collide_finds_every_overlapping_rounded_pair():
         assert np.asarray(mine.valid).any()
 
 
-@pytest.mark.parametrize("call", [
-    lambda: jaxsat.compound([jaxsat.circle(1.0), jaxsat.box([1.0, 1.0])]),
-    lambda: jaxsat.compound_intersects(jaxsat.capsule(1.0, 0.1, dim=2), jaxsat.pose2(0.0, 0.0, 0.0),
-                                       jaxsat.box([1.0, 1.0]), jaxsat.pose2(0.0, 0.0, 0.0)),
-], ids=["compound", "compound-query"])
-def test_queries_without_rounded_support_say_so(call):
-    with pytest.raises(TypeError, match="does not take rounded shapes"):
-        call()
+def test_moved_shapes_answer_like_posed_shapes():
+    """moved(shape, P) at the identity is shape at P: signed distance, penetration and contacts
+    agree on a mixed batch (box, capsule, sphere, rounded box) against random boxes."""
+    rng = np.random.default_rng(21)
+    kinds = [jaxsat.box([0.5, 0.3, 0.2]), jaxsat.capsule(0.5, 0.1), jaxsat.sphere(0.4),
+             jaxsat.rounded(jaxsat.box([0.3, 0.3, 0.3]), 0.1)] * 4
+    params = [(rng.normal(size=3) * 0.5, rng.normal(size=4)) for _ in kinds]
+    placed = jaxsat.stack([jaxsat.moved(shape, jaxsat.pose3(*p)) for shape, p in
+                           zip(kinds, params, strict=True)])
+    posed = jaxsat.stack(kinds)
+    count = len(kinds)
+    others = jaxsat.stack([jaxsat.box(rng.uniform(0.2, 0.6, 3)) for _ in kinds])
+    def at(rows):
+        translations, turns = (np.stack(column) for column in zip(*rows, strict=True))
+        return jax.vmap(jaxsat.pose3)(jnp.asarray(translations), jnp.asarray(turns))
+
+    other_poses = at([(rng.normal(size=3) * 0.6, rng.normal(size=4)) for _ in kinds])
+    identity = at([(np.zeros(3), np.array([1.0, 0, 0, 0]))] * count)
+
+    def queries(a, pose_a, b, pose_b):
+        return (jaxsat.signed_distance(a, pose_a, b, pose_b),
+                jaxsat.penetration(a, pose_a, b, pose_b),
+                jaxsat.contacts(a, pose_a, b, pose_b, margin=0.1))
+
+    batched = jax.jit(jax.vmap(queries))
+    moved = batched(placed, identity, others, other_poses)
+    original = batched(posed, at(params), others, other_poses)
+    for got, wanted in zip(jax.tree.leaves(moved), jax.tree.leaves(original), strict=True):
+        np.testing.assert_allclose(got, wanted, atol=1e-9)
+    assert np.any(np.asarray(moved[0]) < 0) and np.any(np.asarray(moved[0]) > 0)
+    with pytest.raises(TypeError, match="unbatched 3D jaxsat.Pose"):
+        jaxsat.moved(jaxsat.sphere(1.0), jaxsat.pose2(0.0, 0.0, 0.0))
+    with pytest.raises(TypeError, match="unbatched jaxsat.Polytope"):
+        jaxsat.moved(posed, jaxsat.pose3(np.zeros(3), np.array([1.0, 0, 0, 0])))
+
+
+def _dumbbell():
+    """Two spheres joined by a capsule along x: (compound, [(kind, core points, radius)])."""
+    lying = np.array([np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0])  # local z onto x
+    at = lambda x, turn=(1.0, 0.0, 0.0, 0.0): jaxsat.pose3(np.array([x, 0.0, 0.0]),  # noqa: E731
+                                                           np.asarray(turn))
+    pieces = [jaxsat.moved(jaxsat.sphere(0.35), at(-1.0)),
+              jaxsat.moved(jaxsat.sphere(0.25), at(1.0)),
+              jaxsat.moved(jaxsat.capsule(1.0, 0.1), at(0.0, lying))]
+    cores = [np.array([[-1.0, 0, 0]]), np.array([[1.0, 0, 0]]),
+             np.array([[-1.0, 0, 0], [1.0, 0, 0]])]
+    return jaxsat.compound(pieces), list(zip(cores, (0.35, 0.25, 0.1), strict=True))
+
+
+@pytest.mark.slow
+def test_compounds_of_rounded_pieces_against_the_oracle():
+    """A dumbbell (two spheres and a capsule, placed with `moved`) against random boxes:
+    compound_penetration's depth is the deepest piece's minus signed distance (the cores'
+    oracle minus the radius), with that piece; compound_intersects is depth >= 0."""
+    rng = np.random.default_rng(22)
+    dumbbell, pieces = _dumbbell()
+    count = 48
+    halves = rng.uniform(0.2, 0.6, (count, 3))
+    boxes = jaxsat.stack([jaxsat.box(h) for h in halves])
+    translations = rng.uniform(-1.5, 1.5, (count, 3)) * [1.0, 0.5, 0.5]
+    turns = rng.normal(size=(count, 4))
+    poses = jax.vmap(jaxsat.pose3)(jnp.asarray(translations), jnp.asarray(turns))
+    origin = jaxsat.pose3(np.zeros(3), np.array([1.0, 0, 0, 0]))
+    queries = jax.jit(jax.vmap(lambda box, pose: (
+        jaxsat.compound_penetration(dumbbell, origin, box, pose),
+        jaxsat.compound_intersects(dumbbell, origin, box, pose))))
+    found, overlap = queries(boxes, poses)
+    rotations = np.asarray(poses.rotation)
+    overlapping = 0
+    for i in range(count):
+        world_box = harness.corners(halves[i]) @ rotations[i].T + translations[i]
+        depths = [-(core_signed_distance(core, world_box, True, False) - radius)
+                  for core, radius in pieces]
+        label = f"pair {i}: {depths}"
+        assert abs(float(found.depth[i]) - max(depths)) <= 1e-9, label
+        ranked = sorted(depths)
+        if ranked[-1] - ranked[-2] > 1e-9:
+            assert int(found.piece_a[i]) == int(np.argmax(depths)), label
+        if abs(max(depths)) > 1e-9:
+            assert bool(overlap[i]) == (max(depths) > 0), label
+        overlapping += max(depths) > 0
+    assert 0 < overlapping < count
+
+
+def test_compounds_against_half_spaces():
+    """A concave L against a line and the dumbbell against the ground, in both orders: the
+    deepest world core point below the plane, plus its piece's radius."""
+    rng = np.random.default_rng(23)
+    l_shape = jaxsat.concave_polygon(np.array([[0, 0], [2, 0], [2, 0.5], [0.5, 0.5], [0.5, 2],
+                                               [0, 2]], float))
+    corners_l = np.array([[0, 0], [2, 0], [2, 0.5], [0.5, 0.5], [0.5, 2], [0, 2]], float)
+    line = jaxsat.halfspace([0.3, 1.0], 0.2)
+    normal_2d = np.array([0.3, 1.0]) / np.hypot(0.3, 1.0)
+    offset_2d = 0.2 / np.hypot(0.3, 1.0)
+    origin_2d = jaxsat.pose2(0.0, 0.0, 0.0)
+    for _ in range(6):
+        x, y, angle = rng.uniform(-1, 1), rng.uniform(-0.5, 1.5), rng.uniform(-np.pi, np.pi)
+        world = corners_l @ oracle.rotation_2d(angle).T + [x, y]
+        expected = np.max(offset_2d - world @ normal_2d)
+        pose = jaxsat.pose2(x, y, angle)
+        first = jaxsat.compound_penetration(line, origin_2d, l_shape, pose)
+        second = jaxsat.compound_penetration(l_shape, pose, line, origin_2d)
+        for found, sign in ((first, 1.0), (second, -1.0)):
+            assert abs(float(found.depth) - expected) <= 1e-9
+            np.testing.assert_allclose(found.normal, sign * normal_2d, atol=1e-12)
+        assert bool(jaxsat.compound_intersects(l_shape, pose, line, origin_2d)) == (expected >= 0)
+    dumbbell, pieces = _dumbbell()
+    ground = jaxsat.halfspace([0.0, 0.0, 1.0])
+    origin = jaxsat.pose3(np.zeros(3), np.array([1.0, 0, 0, 0]))
+    for _ in range(4):
+        translation, turn = rng.uniform(-0.2, 0.5, 3), rng.normal(size=4)
+        rotation = oracle.rotation_3d(turn)
+        expected = max(radius - np.min((core @ rotation.T + translation)[:, 2])
+                       for core, radius in pieces)
+        found = jaxsat.compound_penetration(dumbbell, jaxsat.pose3(translation, turn), ground,
+                                            origin)
+        assert abs(float(found.depth) - expected) <= 1e-9
+    with pytest.raises(ValueError, match="both half-spaces"):
+        jaxsat.compound_intersects(line, origin_2d, line, origin_2d)
 
 
 # --------------------------------------------------------------------------------------------
