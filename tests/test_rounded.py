@@ -746,8 +746,10 @@ def test_halfspace_constructor_normalises_and_rejects_bad_input():
         jaxsat.signed_distance(ground, origin, ground, origin)
     with pytest.raises(ValueError, match="both half-spaces"):
         jaxsat.contacts(ground, origin, ground, origin)
+    with pytest.raises(ValueError, match="both half-spaces"):
+        jaxsat.compound_intersects(ground, origin, ground, origin)
     with pytest.raises(TypeError, match="Polytope"):
-        jaxsat.compound_intersects(ground, origin, jaxsat.box([1.0, 1.0]), origin)
+        jaxsat.compound_intersects(ground, origin, "box", origin)
 
 
 def test_a_face_resting_on_a_halfspace_has_finite_unit_gradients():
