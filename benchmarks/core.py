@@ -46,6 +46,34 @@ def ellipse(rng, count: int, symmetric: bool = False) -> np.ndarray:
 def corners(half) -> np.ndarray:
     return np.array(list(itertools.product((-1.0, 1.0), repeat=len(half)))) * half
 
+@dataclasses.dataclass(frozen=True)
+class Geom:
+    """One pool shape: `kind` ("hull": of `points`, "box", "sphere", "capsule"), local `points`
+    of its core (a sphere's centre, a capsule's segment along z) and `size` as MuJoCo's geoms
+    take it (box: half extents; sphere: radius, 0, 0; capsule: radius, half length, 0)."""
+    kind: str
+    points: np.ndarray
+    size: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    radius = property(lambda self: self.size[0] if self.kind in ("sphere", "capsule") else 0.0)
+    def build(self, max_vertices, dtype, unique_axes=True):
+        """The jaxsat shape (`max_vertices`: padding of hulls)."""
+        sharp = {"dtype": dtype, "unique_axes": unique_axes}
+        return {"sphere": lambda: jaxsat.sphere(self.size[0], dtype=dtype),
+                "capsule": lambda: jaxsat.capsule(self.size[1], self.size[0], dtype=dtype),
+                "box": lambda: jaxsat.box(self.size, **sharp)}.get(self.kind, lambda: (
+                    jaxsat.polygon if self.points.shape[1] == 2 else jaxsat.polyhedron)(
+                    self.points, max_vertices, **sharp))()
+
+def box(half) -> Geom:
+    return Geom("box", corners(f32(half)), f32(half))
+
+def sphere(rng) -> Geom:
+    return Geom("sphere", np.zeros((1, 3)), f32([rng.uniform(0.15, 0.6), 0, 0]))
+
+def capsule(rng) -> Geom:
+    size = f32([*rng.uniform([0.15, 0.1], 0.6), 0])  # radius, half length
+    return Geom("capsule", np.outer([-1.0, 1.0], [0.0, 0.0, size[1]]), size)
+
 def hull_points(rng, count: int = 20) -> np.ndarray:
     """`count` points on a random ellipsoid (semi-axes 0.3-0.8): every one a hull vertex."""
     directions = rng.normal(size=(count, 3))
@@ -59,10 +87,15 @@ SETS = {
     "2d-octagons": ("convex 8-gons", lambda rng: ellipse(rng, 8)),
     "2d-symmetric8": ("centrally symmetric 8-gons", lambda rng: ellipse(rng, 8, True)),
     "2d-rectangles": ("rectangles, half extents 0.15-0.6",
-                      lambda rng: corners(rng.uniform(0.15, 0.6, 2))),
-    "3d-boxes": ("boxes, half extents 0.15-0.6", lambda rng: corners(rng.uniform(0.15, 0.6, 3))),
-    "3d-hulls": ("hulls of 20 points on ellipsoids, padded to 20", hull_points)}
-"""Data set name: (description, random local vertices of one pool shape)."""
+                      lambda rng: box(rng.uniform(0.15, 0.6, 2))),
+    "3d-boxes": ("boxes, half extents 0.15-0.6", lambda rng: box(rng.uniform(0.15, 0.6, 3))),
+    "3d-hulls": ("hulls of 20 points on ellipsoids, padded to 20", hull_points),
+    "3d-spheres": ("spheres, radius 0.15-0.6", sphere),
+    "3d-capsules": ("capsules along z, radius 0.15-0.6, half length 0.1-0.6", capsule),
+    "3d-sphere-box": ("a: spheres as above, b: boxes as above", sphere,
+                      lambda rng: box(rng.uniform(0.15, 0.6, 3)))}
+"""Data set name: (description, random pool shape: a Geom or local vertices[, the same for
+side b: b draws from its own pool])."""
 CHUNKS = {"2d-small": 8192, "2d-polygons": 8192, "3d-boxes": 8192, "3d-hulls": 256}
 """`query_batch` chunks whose intermediates stay in cache (measured on the 2-core CPU: boxes
 need 3.2 kB per pair, hulls 65 kB)."""
@@ -95,65 +128,96 @@ def pose(params) -> jaxsat.Pose:
 
 @dataclasses.dataclass
 class DataSet:
-    """`points`: local vertices of every pool shape; `pick` (2, N): pool index of a and b;
-    `params` (2, N, P): pose parameters, x y angle (2D) or translation and quaternion w x y z
-    (3D). Every number is a float32 value held in float64."""
+    """`geoms`: every pool shape; `pick` (2, N): pool index of a and b (a from geoms[:split], b
+    from geoms[split:] if split > 0); `params` (2, N, P): pose parameters, x y angle (2D) or
+    translation and quaternion w x y z (3D). Every number is a float32 value held in float64."""
     name: str
-    points: list
+    geoms: list
     pick: np.ndarray
     params: np.ndarray
+    split: int = 0
     def __post_init__(self):
-        self.dim, self.pools = self.points[0].shape[1], {}
+        self.points, self.pools = [g.points for g in self.geoms], {}
+        self.dim = self.points[0].shape[1]
         self.translation = self.params[..., :self.dim]
         self.rotation = rotations(self.params, self.dim)
         self.angle = self.params[..., 2] if self.dim == 2 else None
-        boxes = self.name == "3d-boxes"
-        self.half_extents = np.array([p.max(0) for p in self.points]) if boxes else None
-    def pool(self, dtype=np.float32, unique_axes=True):
-        """The pool shapes, stacked (built once per dtype and unique_axes)."""
-        key, box = (np.dtype(dtype).name, unique_axes), self.name in ("3d-boxes", "2d-rectangles")
+        self.kinds = tuple(self.geoms[self.pick[s, 0]].kind for s in (0, 1))  # one per side
+        self.sides = (slice(0, self.split or None), slice(self.split, None))
+    def pool(self, side=0, dtype=np.float32, unique_axes=True):
+        """The pool shapes of a side, stacked (built once per pool, dtype and unique_axes)."""
+        key = (self.sides[side].start, np.dtype(dtype).name, unique_axes)
         if key not in self.pools:
             self.pools[key] = jax.tree.map(np.asarray, jaxsat.stack([
-                jaxsat.box(p.max(0), dtype=dtype, unique_axes=unique_axes) if box else
-                (jaxsat.polygon if self.dim == 2 else jaxsat.polyhedron)(
-                    p, MAX_VERTICES.get(self.name, 8), dtype=dtype, unique_axes=unique_axes)
-                for p in self.points]))
+                g.build(MAX_VERTICES.get(self.name, 8), dtype, unique_axes)
+                for g in self.geoms[self.sides[side]]]))
         return self.pools[key]
     def shapes(self, index=slice(None), dtype=np.float32, unique_axes=True):
         """(a, b): the shapes of pairs `index`, batched on the device."""
-        pool = self.pool(dtype, unique_axes)
-        return tuple(jax.tree.map(lambda x, p=p: jnp.asarray(x)[p[index]], pool) for p in self.pick)
+        return tuple(jax.tree.map(lambda x, p=self.pick[s] - self.sides[s].start: jnp.asarray(
+            x)[p[index]], self.pool(s, dtype, unique_axes)) for s in (0, 1))
     def inputs(self, index=slice(None), dtype=np.float32, unique_axes=True):
         """(a, pose_a, b, pose_b) of pairs `index` on the device."""
         a, b = self.shapes(index, dtype, unique_axes)
         pose = [jaxsat.Pose(jnp.asarray(self.translation[s][index], dtype),
                             jnp.asarray(self.rotation[s][index], dtype)) for s in (0, 1)]
         return a, pose[0], b, pose[1]
-    def world(self, i: int, params=None):
-        """float64 world vertices of pair i (at pose parameters `params`, (2P,), if given)."""
+    def evaluate(self, i: int, params=None, tie_tolerance: float = 0.0) -> oracle.Oracle:
+        """Oracle values of pair i (at pose parameters `params`, (2P,), if given): the Minkowski
+        difference of the world vertices, or `rounded_oracle` for spheres and capsules."""
         params = self.params[:, i] if params is None else np.reshape(params, (2, -1))
-        rotation = rotations(params, self.dim)
-        return tuple(oracle.to_world(self.points[self.pick[s, i]], rotation[s],
-                                     params[s, :self.dim]) for s in (0, 1))
+        geoms, rotation = [self.geoms[k] for k in self.pick[:, i]], rotations(params, self.dim)
+        world = [oracle.to_world(g.points, r, t) for g, r, t in zip(
+            geoms, rotation, params[:, :self.dim], strict=True)]
+        if geoms[0].radius == geoms[1].radius == 0:
+            return oracle.evaluate(*world, tie_tolerance=tie_tolerance)
+        return rounded_oracle(geoms, world, rotation, params[:, :self.dim], tie_tolerance)
     def signed(self, i: int, params=None) -> float:
         """Oracle signed distance of pair i: the distance apart, minus the depth overlapping."""
-        result = oracle.evaluate(*self.world(i, params))
-        return result.distance if result.depth < 0 else -result.depth
+        found = self.evaluate(i, params)
+        return found.distance if found.depth < 0 else -found.depth
+
+def rounded_oracle(geoms, world, rotation, translation, tie_tolerance) -> oracle.Oracle:
+    """Closed forms for a pair with a sphere or capsule: the cores' signed distance minus the
+    radii (depth: minus that, also apart), the normal (a to b) along the cores' closest points
+    (`oracle.segment_closest_points`; a sphere's core is a point), for a sphere and a box from
+    the centre's clamp to the box to the centre, or for a centre inside, out of the nearest
+    face (unique unless faces tie within `tie_tolerance`)."""
+    kinds = [g.kind for g in geoms]
+    if "box" in kinds:  # the sphere's centre in the box's frame, how far outside, face gaps
+        s, half = kinds.index("box"), geoms[kinds.index("box")].size
+        local = rotation[s].T @ (world[1 - s][0] - translation[s])
+        outside, gaps = local - np.clip(local, -half, half), half - np.abs(local)
+        k, inside = np.argmin(gaps), not np.any(outside)
+        core = -gaps[k] if inside else np.linalg.norm(outside)
+        normal = rotation[s] @ (np.eye(3)[k] * np.copysign(1.0, local[k]) if inside else
+                                outside) * (1 - 2 * s)  # box to sphere, flipped for a box b
+        unique = not inside or np.sum(gaps <= gaps[k] + tie_tolerance) == 1
+    else:
+        x, y = oracle.segment_closest_points(world[0][0], world[0][-1], world[1][0],
+                                             world[1][-1])
+        core, normal, unique = np.linalg.norm(y - x), y - x, np.linalg.norm(y - x) > 1e-9
+    signed = core - geoms[0].radius - geoms[1].radius
+    return oracle.Oracle(-signed, normal / np.linalg.norm(normal), bool(unique), max(signed, 0.0),
+                         np.nan)
 
 def make_data(name: str, pairs: int, pool: int = 256, seed: int = 0, spread=(0.0, 1.8)):
-    """Data set `name`: `pool` random shapes and `pairs` random pairs of them, b's origin
-    `spread` from a's (about half collide by default). Same arguments, same data."""
+    """Data set `name`: `pool` random shapes (per side if b has its own) and `pairs` random
+    pairs of them, b's origin `spread` from a's (about half collide by default). Same
+    arguments, same data."""
     rng = np.random.default_rng([seed, list(SETS).index(name)])
-    points = [f32(SETS[name][1](rng)) for _ in range(pool)]
-    dim = points[0].shape[1]
-    pick = rng.integers(0, pool, (2, pairs))
+    makers = SETS[name][1:]
+    geoms = [made if isinstance(made := make(rng), Geom) else Geom("hull", f32(made))
+             for make in makers for _ in range(pool)]
+    dim, split = geoms[0].points.shape[1], pool * (len(makers) - 1)
+    pick = rng.integers(0, pool, (2, pairs)) + np.array([[0], [split]])
     centres, directions = rng.uniform(-1.0, 1.0, (pairs, dim)), rng.normal(size=(pairs, dim))
     ends = centres + directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(
         *spread, (pairs, 1))
     turns = rng.uniform(-np.pi, np.pi, (2, pairs, 1)) if dim == 2 else rng.normal(
         size=(2, pairs, 4))
     params = np.concatenate([np.stack([centres, ends]), turns], axis=-1)
-    return DataSet(name, points, pick, f32(params))
+    return DataSet(name, geoms, pick, f32(params), split)
 
 OVERLAP_TOLERANCE = 1e-6
 """Pairs with |oracle depth| below this are touching: out of the overlap statistics."""
@@ -162,8 +226,8 @@ FD_STEPS = (1e-4, 1e-5)
 
 @dataclasses.dataclass
 class Reference:
-    """tests/oracle.py on the first pairs of a data set: depth (when < 0: minus the largest
-    Minkowski facet gap), normal, normal_is_unique, distance (float64)."""
+    """The oracle on the first pairs of a data set: depth (when < 0: minus the largest
+    Minkowski facet gap, or for rounded shapes the distance), normal, normal_is_unique, distance."""
     depth: np.ndarray
     normal: np.ndarray
     normal_is_unique: np.ndarray
@@ -173,7 +237,7 @@ class Reference:
     signed = property(lambda self: np.where(self.depth < 0, self.distance, -self.depth))
 
 def reference(data: DataSet, count: int) -> Reference:
-    found = [oracle.evaluate(*data.world(i), tie_tolerance=1e-9) for i in range(count)]
+    found = [data.evaluate(i, tie_tolerance=1e-9) for i in range(count)]
     return Reference(*(np.array([getattr(r, key) for r in found]) for key in
                        ("depth", "normal", "normal_is_unique", "distance")))
 

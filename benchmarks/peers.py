@@ -19,6 +19,7 @@ import pathlib
 import sys
 import time
 from collections.abc import Callable
+from types import SimpleNamespace
 
 import jax
 import numpy as np
@@ -28,7 +29,8 @@ import jaxsat
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import core  # noqa: E402
 
-CASES = ["2d-small", "2d-polygons", "3d-boxes", "3d-hulls"]
+CASES = ["2d-small", "2d-polygons", "3d-boxes", "3d-hulls", "3d-spheres", "3d-capsules",
+         "3d-sphere-box"]
 DEFAULTS = {"sizes": ([1_000, 10_000, 100_000], [1_000, 10_000]), "error_pairs": (2000, 500),
             "grad_pairs": (200, 20), "loop_pairs": (20_000, 1000), "repeats": (5, 2),
             "max_call_seconds": (60.0, 10.0), "cases": (CASES, CASES), "budget_seconds": (20, 20),
@@ -105,7 +107,8 @@ def _penetration(out, sign=1):
 
 def _jaxsat(query, decode=_penetration, chunked=False):
     def prepare(data, n):
-        function = functools.partial(jaxsat.query_batch, query, chunk_size=core.CHUNKS[data.name])
+        function = functools.partial(jaxsat.query_batch, query,
+                                     chunk_size=core.CHUNKS.get(data.name, 8192))
         return _jax(function if chunked else jax.vmap(query), data.inputs(slice(0, n)), decode)
     return prepare
 
@@ -264,13 +267,14 @@ def collision_prepare(data, n):
 def _mesh_spec(data):
     import mujoco
     spec = mujoco.MjSpec()
-    for k, points in enumerate(data.points if data.half_extents is None else []):
-        mesh = spec.add_mesh()
-        mesh.name, mesh.uservert = f"hull{k}", points.flatten().tolist()
+    for k, geom in enumerate(data.geoms):
+        if geom.kind == "hull":
+            mesh = spec.add_mesh()
+            mesh.name, mesh.uservert = f"hull{k}", geom.points.flatten().tolist()
     return spec
 
 def _mujoco_pool(data):
-    """A compiled MjModel with one mesh geom per pool hull (None for boxes)."""
+    """A compiled MjModel with one mesh geom per pool hull (None without hulls)."""
     import mujoco
     def build():
         spec = _mesh_spec(data)
@@ -278,7 +282,7 @@ def _mujoco_pool(data):
             geom = spec.worldbody.add_body(mocap=True).add_geom()
             geom.type, geom.meshname = mujoco.mjtGeom.mjGEOM_MESH, f"hull{k}"
         return spec.compile()
-    return None if data.half_extents is not None else _memo(data, "mujoco", build)
+    return _memo(data, "mujoco", build) if "hull" in data.kinds else None
 
 def _geom_frames(data, pool, s, indices):
     """World positions and rotations of side s's geoms. MuJoCo re-centres a mesh on its
@@ -313,10 +317,10 @@ def _mujoco_models(data, n):
             for i in range(start, stop):
                 geom, k = body.add_geom(), int(data.pick[s, i])
                 geom.name, geom.contype, geom.conaffinity = f"{side}{i}", 0, 0
-                if pool is None:
-                    geom.type, geom.size = mujoco.mjtGeom.mjGEOM_BOX, data.half_extents[k]
-                else:
-                    geom.type, geom.meshname = mujoco.mjtGeom.mjGEOM_MESH, f"hull{k}"
+                hull, geom.size = data.kinds[s] == "hull", data.geoms[k].size
+                geom.type = getattr(mujoco.mjtGeom, "mjGEOM_" + (
+                    "MESH" if hull else data.kinds[s].upper()))
+                geom.meshname = f"hull{k}" * hull
         for i in range(start, stop):
             pair = spec.add_pair()
             pair.geomname1, pair.geomname2 = f"a{i}", f"b{i}"
@@ -386,35 +390,46 @@ def _mjx_meshes(data, pool):
 
 def _mjx_arguments(data, indices):
     """((pos, mat, size) of a, the same of b[, mesh fields of a, of b]), float32."""
-    boxes = data.half_extents is not None
-    pool, geoms, meshes = None if boxes else _mujoco_pool(data), [], []
+    hulls = "hull" in data.kinds
+    pool, geoms, meshes = _mujoco_pool(data), [], []
     for s in (0, 1):
         position, rotation = _geom_frames(data, pool, s, indices)
         pick = data.pick[s, indices]
-        size = data.half_extents[pick] if boxes else np.zeros_like(position)
-        geoms.append(tuple(np.asarray(x, np.float32) for x in (position, rotation, size)))
-        if not boxes:
+        geoms.append(tuple(np.asarray(x, np.float32) for x in (
+            position, rotation, [data.geoms[k].size for k in pick])))
+        if hulls:
             meshes.append(tuple(field[pick] for field in _mjx_meshes(data, pool)))
     return (*geoms, *meshes)
 
-def _mjx_batched(boxes: bool):
-    """MJX's _box_box or _convex_convex without the Model/Data plumbing, vmapped over pairs:
-    distances (n, 4), points (n, 4, 3) and contact frames (n, 4, 3, 3)."""
-    from mujoco.mjx._src import collision_convex, math, mesh
+def _mjx_batched(kinds):
+    """MJX's function for the pair of kinds without the Model/Data plumbing, vmapped over pairs:
+    distances (n, k), points (n, k, 3) and contact frames (n, k, 3, 3). Spheres and capsules:
+    MJX's own vmapped collider, given stand-ins for Model and Data that hold the geoms."""
+    from mujoco.mjx._src import collision_convex, collision_primitive, math, mesh
     from mujoco.mjx._src.collision_types import ConvexInfo, GeomInfo
-    def framed(collide):
-        def pair(info_a, info_b):
-            dist, pos, normal = collide(info_a, info_b)
-            return dist, pos, jax.vmap(math.make_frame)(normal)
-        return pair
+    if "box" not in kinds and "hull" not in kinds:
+        def primitive(geom_a, geom_b):
+            n, (pos, mat, size) = len(geom_a[0]), map(jax.numpy.concatenate, zip(
+                geom_a, geom_b, strict=True))
+            out = getattr(collision_primitive, "_".join(kinds))(
+                SimpleNamespace(geom_size=size), SimpleNamespace(geom_xpos=pos, geom_xmat=mat),
+                None, np.stack([np.arange(n), n + np.arange(n)], 1))
+            return jax.tree.map(lambda x: x[:, None], out)
+        return primitive
+    def pair(info_a, info_b):
+        collide = {"box": collision_convex._box_box, "hull": collision_convex._convex_convex,
+                   "sphere": collision_convex._sphere_convex}[kinds[0]]
+        dist, pos, normal = collide(info_a, info_b)
+        return dist.reshape(-1), pos.reshape(-1, 3), jax.vmap(math.make_frame)(normal.reshape(
+            -1, 3))
     def batched(geom_a, geom_b, mesh_a=(), mesh_b=()):
-        if boxes:
-            infos = [mesh.box(GeomInfo(*geom)) for geom in (geom_a, geom_b)]
-            axes = jax.tree.map(lambda x: None, infos[0]).replace(pos=0, mat=0, size=0, face=0,
-                                                                  vert=0)
-            return jax.vmap(framed(collision_convex._box_box), in_axes=(axes, axes))(*infos)
-        infos = [ConvexInfo(*geom_a, *mesh_a), ConvexInfo(*geom_b, *mesh_b)]
-        return jax.vmap(framed(collision_convex._convex_convex))(*infos)
+        infos, axes = [], []
+        for kind, geom, fields in zip(kinds, (geom_a, geom_b), (mesh_a, mesh_b), strict=True):
+            infos.append(mesh.box(GeomInfo(*geom)) if kind == "box" else
+                         ConvexInfo(*geom, *fields) if kind == "hull" else GeomInfo(*geom))
+            axes.append(jax.tree.map(lambda x: None, infos[-1]).replace(
+                pos=0, mat=0, size=0, face=0, vert=0) if kind == "box" else 0)
+        return jax.vmap(pair, in_axes=axes)(*infos)
     return batched
 
 def _decode_mjx(out):
@@ -424,11 +439,10 @@ def _decode_mjx(out):
     return -dist, normal, dist < 0
 
 def mjx_prepare(data, n):
-    return _jax(_mjx_batched(data.half_extents is not None), _mjx_arguments(data, np.arange(n)),
-                _decode_mjx)
+    return _jax(_mjx_batched(data.kinds), _mjx_arguments(data, np.arange(n)), _decode_mjx)
 
 def mjx_gradient(data, indices):
-    batched = _mjx_batched(data.half_extents is not None)
+    batched = _mjx_batched(data.kinds)
     geom_a, geom_b, *meshes = _mjx_arguments(data, indices)
     def total_depth(position_b, geom_a, rest_b, meshes):
         # pairs are independent: the gradient of the sum is each pair's gradient
@@ -439,15 +453,17 @@ def mjx_gradient(data, indices):
 
 def coal_prepare(data, n):
     import coal
-    def geometry(points, k):
-        if data.half_extents is not None:
-            return coal.Box(*(2 * data.half_extents[k]))
+    def geometry(geom):
+        if geom.kind != "hull":
+            return {"box": lambda: coal.Box(*(2 * geom.size)), "sphere": lambda: coal.Sphere(
+                geom.size[0]), "capsule": lambda: coal.Capsule(geom.size[0], 2 * geom.size[1])
+                    }[geom.kind]()  # Capsule(radius, length of the segment)
         vertices = coal.StdVec_Vec3s()
-        for point in points:
+        for point in geom.points:
             vertices.append(np.asarray(point, np.float64))
         return coal.Convex.convexHull(vertices, False, "")
     def build():
-        shapes = [geometry(points, k) for k, points in enumerate(data.points)]
+        shapes = [geometry(geom) for geom in data.geoms]
         return [tuple(x for s in (0, 1) for x in (shapes[data.pick[s, i]], coal.Transform3s(
             data.rotation[s, i], data.translation[s, i]))) for i in range(n)]
     request, result = coal.DistanceRequest(), coal.DistanceResult()
@@ -457,7 +473,7 @@ def coal_prepare(data, n):
         return coal.distance(*pair, request, result), tuple(result.normal)
     return _loop(build, distance, lambda out: (-out[0], _unit(out[1]), True, out[0] < 0))
 
-TWO_D, THREE_D, ALL = ("2d-small", "2d-polygons"), ("3d-boxes", "3d-hulls"), tuple(CASES)
+TWO_D, THREE_D, ALL = ("2d-small", "2d-polygons"), tuple(CASES[2:]), tuple(CASES)
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("jaxsat", ALL, DEPTH, "float32", "jaxsat", _jaxsat(jaxsat.penetration),
            _jaxsat_gradient(lambda *x: jaxsat.penetration(*x).depth)),
@@ -620,11 +636,13 @@ def main(argv=None) -> int:
     args = core.parse(parser, argv, DEFAULTS)
     args.sizes = sorted(set(args.sizes))
     if args.list:
-        print(f"{'method':<17} {'level':<23} {'dtype':<8} {'cases':<45} status")
+        width = max(len(" ".join(m.cases)) for m in METHODS.values())
+        print(f"{'method':<17} {'level':<23} {'dtype':<8} {'cases':<{width}} status")
         for m in METHODS.values():
             status = (f"missing {m.module} (pip install {m.install or m.module})" if m.missing()
                       else "installed")
-            print(f"{m.name:<17} {m.level:<23} {m.precision:<8} {' '.join(m.cases):<45} {status}")
+            print(f"{m.name:<17} {m.level:<23} {m.precision:<8} "
+                  f"{' '.join(m.cases):<{width}} {status}")
         return 0
     info, rows = core.machine_info(DISTRIBUTIONS), []
     for case in args.cases:
@@ -633,7 +651,7 @@ def main(argv=None) -> int:
         grads = gradient_pairs(data, ref, args.grad_pairs)
         for method in (METHODS[name] for name in args.methods if case in METHODS[name].cases):
             rows.append(row := measure(method, data, ref, grads, args))
-            print(f"{case:<12} {method.name:<17} " + "  ".join(
+            print(f"{case:<13} {method.name:<17} " + "  ".join(
                 f"{n:.0e}: {size_cell(row['sizes'].get(n))}" for n in args.sizes)
                 + f"  depth err {core.num(row.get('errors', {}).get('depth_error_max'))}",
                 file=sys.stderr, flush=True)

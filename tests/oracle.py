@@ -144,11 +144,11 @@ def inside_polygon(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
     return np.sum(straddles & (x < crossing_x), axis=1) % 2 == 1
 
 
-def segment_distance(p0, p1, q0, q1) -> float:
-    """Euclidean distance between segments [p0, p1] and [q0, q1] (2D or 3D; a segment may be a
-    point): the minimum of |p0 + s u - q0 - t v|^2 over the unit square, a convex quadratic,
-    taken over its stationary point inside the square (if any) and each side's clamped
-    minimum, which together contain the minimiser."""
+def segment_closest_points(p0, p1, q0, q1) -> tuple[np.ndarray, np.ndarray]:
+    """A closest pair of points (x on [p0, p1], y on [q0, q1]) of two segments (2D or 3D; a
+    segment may be a point): the minimum of |p0 + s u - q0 - t v|^2 over the unit square, a
+    convex quadratic, taken over its stationary point inside the square (if any) and each
+    side's clamped minimum, which together contain the minimiser."""
     p0, p1, q0, q1 = (np.asarray(x, np.float64) for x in (p0, p1, q0, q1))
     u, v, w = p1 - p0, q1 - q0, p0 - q0
     a, b, c, d, e = u @ u, u @ v, v @ v, u @ w, v @ w
@@ -170,4 +170,11 @@ def segment_distance(p0, p1, q0, q1) -> float:
         s, t = (b * e - c * d) / determinant, (a * e - b * d) / determinant
         if 0.0 <= s <= 1.0 and 0.0 <= t <= 1.0:
             candidates.append((s, t))
-    return float(np.sqrt(min(squared(s, t) for s, t in candidates)))
+    s, t = min(candidates, key=lambda st: squared(*st))
+    return p0 + s * u, q0 + t * v
+
+
+def segment_distance(p0, p1, q0, q1) -> float:
+    """Euclidean distance between segments [p0, p1] and [q0, q1] (see segment_closest_points)."""
+    x, y = segment_closest_points(p0, p1, q0, q1)
+    return float(np.linalg.norm(x - y))

@@ -160,3 +160,16 @@ def test_distance_benchmark_reports_ratios_and_unit_gradients(monkeypatch, tmp_p
         assert 0.99 < row[kind]["max_translation_gradient"] <= 1.0 + 1e-5
     assert set(record["eager"]["2d-polygons"]) >= {"penetration", "signed_distance"}
     assert "x penetration" in prefix.with_suffix(".md").read_text()
+
+
+def test_rounded_row_matches_the_closed_form(peers, tmp_path):
+    """Spheres against boxes (b drawn from a pool of its own; jaxsat's distance search on a
+    rounded pair) against the oracle's closed form: the centre clamped to the box."""
+    prefix = tmp_path / "rounded"
+    argv = [*TINY, "--methods", "jaxsat", "--output", str(prefix)]
+    argv[argv.index("--cases") + 1] = "3d-sphere-box"
+    assert peers.main(argv) == 0
+    errors = json.loads(prefix.with_name("rounded.json").read_text())["rows"][0]["errors"]
+    assert errors["overlapping"] > 10 and errors["wrong_overlap"] == 0
+    assert errors["depth_error_max"] < 1e-5 and errors["normal_error_max_deg"] < 1e-2
+    assert errors["grad_pairs"] == 4 and errors["grad_error_max"] < 1e-4
