@@ -43,8 +43,8 @@ from jaxsat._pair import PairFrame
 from jaxsat._sat import sat_search
 from jaxsat._shapes import ring_neighbours
 
-__all__ = ["ExactDistance", "closest_pair_of_support_faces", "exact_distance",
-           "signed_distance_of_witnesses", "support_gap", "witness"]
+__all__ = ["ExactDistance", "closest_pair_of_segments", "closest_pair_of_support_faces",
+           "exact_distance", "signed_distance_of_witnesses", "support_gap", "witness"]
 
 GJK_TOLERANCE = 4
 """GJK stops once the distance is known to within this many ulps of the pair's extent, and
@@ -88,8 +88,11 @@ def support_gap(axis, a_vertices, b_vertices):
 
 def exact_distance(frame: PairFrame) -> ExactDistance:
     """The exact signed distance of a prepared pair, its axis and witness weights (see the
-    module docstring). Call it on a stop_gradient'ed frame: it is a search, not a formula."""
+    module docstring). Call it on a stop_gradient'ed frame: it is a search, not a formula.
+    Point and segment cores in 3D (spheres and capsules) take `closest_pair_of_segments`."""
     a_vertices, b_vertices = frame.a.vertices, frame.b_vertices
+    if frame.dim == 3 and a_vertices.shape[0] <= 2 and b_vertices.shape[0] <= 2:
+        return closest_pair_of_segments(a_vertices, b_vertices)
     sat = sat_search(frame)
     shift = jnp.maximum(sat.depth, 0.0) * sat.axis
     moved_b = b_vertices + shift
@@ -123,6 +126,67 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
                          axis=k.where(use_witness, witness_axis, sat.axis),
                          index_a=simplex.index_a, index_b=simplex.index_b,
                          weights=simplex.weights)
+
+
+def closest_pair_of_segments(a_vertices, b_vertices) -> ExactDistance:
+    """The distance of two 3D segments (or points: one vertex, or two equal ones), their
+    closest pair and its axis, in closed form (no SAT, no GJK).
+
+    In 3D two segments never overlap with a positive depth (a translation along their common
+    perpendicular, however small, separates them), so the signed distance of the cores is
+    their Euclidean distance. The closest pair minimises |a(s) - b(t)|^2 over the unit
+    square: the stationary point clamped to [0, 1] in s, then t for that s clamped, then s
+    again for that t (exact for a convex quadratic on a square; parallel segments take s = 0
+    first). Where the segments touch (|q - p| = 0) the axis is their common perpendicular,
+    or any direction across a's segment if they are parallel, or x for two points.
+
+    The witness is written as D + 1 shared weights on vertex pairs, as GJK's simplex: with
+    s >= t the pairs (a0, b0), (a1, b0), (a1, b1) with weights 1 - s, s - t, t (else
+    (a0, b0), (a0, b1), (a1, b1) with 1 - t, t - s, s), all >= 0, so that p = (1 - s) a0 +
+    s a1 and q = (1 - t) b0 + t b1."""
+    dtype = a_vertices.dtype
+    a0, a1 = k.as_vec(a_vertices[0]), k.as_vec(a_vertices[-1])
+    b0, b1 = k.as_vec(b_vertices[0]), k.as_vec(b_vertices[-1])
+    along_a, along_b, offset = k.vsub(a1, a0), k.vsub(b1, b0), k.vsub(a0, b0)
+    aa, bb, ab = k.vdot(along_a, along_a), k.vdot(along_b, along_b), k.vdot(along_a, along_b)
+    a_offset, b_offset = k.vdot(along_a, offset), k.vdot(along_b, offset)
+    eps = jnp.finfo(dtype).eps
+    has_a, has_b = aa > 0, bb > 0
+    determinant = aa * bb - ab * ab
+    # Parallel within rounding: every s has a closest t, and s = 0 is as good as any.
+    crossing = determinant > 16 * eps * aa * bb
+    s = jnp.clip(k.safe_divide(ab * b_offset - a_offset * bb, determinant, crossing & has_a),
+                 0.0, 1.0)
+    t = jnp.clip(k.safe_divide(ab * s + b_offset, bb, has_b), 0.0, 1.0)
+    s = jnp.clip(k.safe_divide(ab * t - a_offset, aa, has_a), 0.0, 1.0)
+    p = k.vadd(a0, k.vscale(s, along_a))
+    q = k.vadd(b0, k.vscale(t, along_b))
+    gap = k.vsub(q, p)
+    distance_squared = k.vdot(gap, gap)
+    scale = jnp.maximum(jnp.maximum(aa, bb), k.vdot(offset, offset))
+    apart = distance_squared > (eps * eps) * scale
+    perpendicular = k.vcross(along_a, along_b)
+    across_a = k.vcross(along_a, k.vselect(jnp.abs(along_a[0]) <= jnp.abs(along_a[1]),
+                                           (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)))
+    fallback = k.vselect(crossing & has_a & has_b, perpendicular,
+                         k.vselect(has_a, across_a, (1.0, 0.0, 0.0)))
+    # The common perpendicular's sense: from a towards b's middle.
+    towards = k.vdot(fallback, k.vsub(k.vadd(b0, k.vscale(0.5, along_b)),
+                                      k.vadd(a0, k.vscale(0.5, along_a))))
+    fallback = k.vscale(k.where(towards < 0, -1.0, 1.0).astype(dtype), fallback)
+    direction = k.vselect(apart, gap, fallback)
+    axis, _ = k.safe_normalize(jnp.stack(direction), 0.0)
+    distance = k.where(apart, jnp.sqrt(k.where(apart, distance_squared, 1.0)), 0.0)
+    last_a, last_b = a_vertices.shape[0] - 1, b_vertices.shape[0] - 1
+    a_first = s >= t
+    index_a = jnp.stack([jnp.zeros((), jnp.int32), k.where(a_first, last_a, 0).astype(jnp.int32),
+                         jnp.full((), last_a, jnp.int32), jnp.zeros((), jnp.int32)])
+    index_b = jnp.stack([jnp.zeros((), jnp.int32), k.where(a_first, 0, last_b).astype(jnp.int32),
+                         jnp.full((), last_b, jnp.int32), jnp.zeros((), jnp.int32)])
+    weights = jnp.stack([1.0 - jnp.maximum(s, t), jnp.abs(s - t), jnp.minimum(s, t),
+                         jnp.zeros((), dtype)])
+    return ExactDistance(distance=distance, axis=axis, index_a=index_a, index_b=index_b,
+                         weights=weights)
 
 
 def signed_distance_of_witnesses(frame: PairFrame, found: ExactDistance):

@@ -32,10 +32,13 @@ POOL_KINDS = {
     "box-class": ("sphere", "capsule", "rounded_box", "box"),
     "hull-class": ("sphere", "capsule", "rounded_hull"),
     "polygon-class": ("circle", "capsule2", "rounded_polygon", "polygon"),
+    "segment-class": ("sphere", "capsule"),
 }
 """Mixed pools, each stacked into one size class: the box class keeps the parallelepiped SAT
 (edge pairs by projection), the hull class the Gauss map (a segment core by its four quarter
-arcs); every query compiles once per pool pair and dtype."""
+arcs), the segment class (spheres and capsules alone: cores of at most 2 vertices) the closed
+form of `_closest.closest_pair_of_segments`; every query compiles once per pool pair and
+dtype."""
 
 
 @dataclasses.dataclass
@@ -108,11 +111,14 @@ def distance_to_core(point, world_core, degenerate) -> float:
 POOL_CASES = [pytest.param(names, dtype, id=f"{names[0]}-{names[1]}-{dtype.__name__}",
                            marks=() if names[0] == "polygon-class" else pytest.mark.slow)
               for names in [("box-class", "box-class"), ("hull-class", "box-class"),
-                            ("polygon-class", "polygon-class")]
+                            ("polygon-class", "polygon-class"),
+                            ("segment-class", "segment-class")]
               for dtype in harness.DTYPES
               # float32 runs on the box class, which covers the float32 paths new to rounded
-              # shapes (degenerate cores); hulls and polygons take the sharp shapes' paths
-              if names == ("box-class", "box-class") or dtype == np.float64]
+              # shapes (degenerate cores), and on the segment class, whose closed form is its
+              # own; hulls and polygons take the sharp shapes' paths
+              if names in (("box-class", "box-class"), ("segment-class", "segment-class"))
+              or dtype == np.float64]
 
 
 @dataclasses.dataclass
@@ -130,8 +136,10 @@ class RoundedPairs:
 def rounded_pairs(name_a: str, name_b: str, dtype) -> RoundedPairs:
     pool_a, pool_b = rounded_pool(name_a, dtype), rounded_pool(name_b, dtype)
     rng = np.random.default_rng([3, len(name_a), len(name_b)])
+    # Spheres and capsules alone are thinner: closer poses keep a quarter of them in contact.
+    spread = 1.5 if "segment-class" in (name_a, name_b) else 3.0
     pairs = harness.random_pairs(pool_a.pool, pool_b.pool, COUNT, rng, dtype,
-                                 distance=(0.0, 3.0))
+                                 distance=(0.0, spread))
     world_a, world_b = harness.world_points(pairs)
     expected, size = [], []
     for i, (index_a, index_b) in enumerate(zip(pairs.index_a, pairs.index_b, strict=True)):
@@ -359,16 +367,20 @@ EXACT_TOUCHES = ("point-sphere-on-box-corner", "end-to-end-capsules")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize(("dim", "segments_only"), [(2, False), (3, False), (3, True)],
+                         ids=["2", "3", "3-spheres-and-capsules"])
 @pytest.mark.parametrize("dtype", harness.DTYPES, ids=harness.DTYPE_IDS)
-def test_degenerate_rounded_pairs_are_finite_and_exact(dim, dtype):
+def test_degenerate_rounded_pairs_are_finite_and_exact(dim, segments_only, dtype):
     """Coincident cores, cores inside a box at a many-way tie, collinear, parallel, crossing
     and end-to-end segments, zero radius and zero length (all cases of one dimension in one
     batch): the value by hand, a unit normal, penetration = minus the value, finite exact and
     smooth gradients in every input, unit-bounded in b's translation; intersects by the
     sign; contacts finite, with closest_points' normal and the deepest depth minus the value,
-    and a finite gradient of the first depth."""
-    names = [name for name, case in DEGENERATE_CASES.items() if case[0].dim == dim]
+    and a finite gradient of the first depth. `segments_only`: the 3D cases between spheres
+    and capsules alone, batched without a box, so that their cores keep at most 2 vertices
+    and take the closed form (`_closest.closest_pair_of_segments`)."""
+    names = [name for name, case in DEGENERATE_CASES.items() if case[0].dim == dim and not (
+        segments_only and max(case[0].vertices.shape[0], case[2].vertices.shape[0]) > 2)]
     cast = lambda shape: jax.tree.map(  # noqa: E731
         lambda leaf: leaf.astype(dtype) if jnp.issubdtype(leaf.dtype, jnp.floating) else leaf,
         shape)
