@@ -113,12 +113,7 @@ POOL_CASES = [pytest.param(names, dtype, id=f"{names[0]}-{names[1]}-{dtype.__nam
               for names in [("box-class", "box-class"), ("hull-class", "box-class"),
                             ("polygon-class", "polygon-class"),
                             ("segment-class", "segment-class")]
-              for dtype in harness.DTYPES
-              # float32 runs on the box class, which covers the float32 paths new to rounded
-              # shapes (degenerate cores), and on the segment class, whose closed form is its
-              # own; hulls and polygons take the sharp shapes' paths
-              if names in (("box-class", "box-class"), ("segment-class", "segment-class"))
-              or dtype == np.float64]
+              for dtype in harness.DTYPES]
 
 
 @dataclasses.dataclass
@@ -676,9 +671,9 @@ def _plane_query(plane, params_plane, shape, params_shape):
 _batched_plane_query = jax.jit(jax.vmap(_plane_query), compiler_options=harness.FAST_COMPILE)
 
 
-@pytest.mark.parametrize(("name", "dtype"), [("box-class", np.float64),
-                                             ("box-class", np.float32),
-                                             ("polygon-class", np.float64)])
+@pytest.mark.parametrize(("name", "dtype"), [(name, dtype) for name in ("box-class",
+                                                                         "polygon-class")
+                                             for dtype in harness.DTYPES])
 def test_halfspace_queries_match_the_lowest_vertex(name, dtype):
     """A random half-space against spheres, capsules, rounded and sharp polytopes, in either
     order: the signed distance is the least height of the core's world vertices above the
