@@ -131,6 +131,7 @@ def test_collide_vmaps_over_scenes():
         assert set(_colliding(one)) == set(_brute_force(scene_shapes, scene_poses))
 
 
+@pytest.mark.slow
 def test_collide_with_half_spaces():
     """A ground and a wall given as planes: every shape against each at every level, equal to
     the deepest world vertex below each plane (NumPy); the shape pairs and the broad-phase
