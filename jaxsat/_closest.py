@@ -164,7 +164,9 @@ def closest_pair_of_segments(a_vertices, b_vertices) -> ExactDistance:
     gap = k.vsub(q, p)
     distance_squared = k.vdot(gap, gap)
     scale = jnp.maximum(jnp.maximum(aa, bb), k.vdot(offset, offset))
-    apart = distance_squared > (eps * eps) * scale
+    # Written so that NaN counts as apart: non-finite input then gives a NaN distance and
+    # axis, never the plausible 0 of touching cores.
+    apart = ~(distance_squared <= (eps * eps) * scale)
     perpendicular = k.vcross(along_a, along_b)
     across_a = k.vcross(along_a, k.vselect(jnp.abs(along_a[0]) <= jnp.abs(along_a[1]),
                                            (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)))
@@ -175,8 +177,8 @@ def closest_pair_of_segments(a_vertices, b_vertices) -> ExactDistance:
                                       k.vadd(a0, k.vscale(0.5, along_a))))
     fallback = k.vscale(k.where(towards < 0, -1.0, 1.0).astype(dtype), fallback)
     direction = k.vselect(apart, gap, fallback)
-    axis, _ = k.safe_normalize(jnp.stack(direction), 0.0)
     distance = k.where(apart, jnp.sqrt(k.where(apart, distance_squared, 1.0)), 0.0)
+    axis = k.where(jnp.isnan(distance), jnp.nan, k.safe_normalize(jnp.stack(direction), 0.0)[0])
     last_a, last_b = a_vertices.shape[0] - 1, b_vertices.shape[0] - 1
     a_first = s >= t
     index_a = jnp.stack([jnp.zeros((), jnp.int32), k.where(a_first, last_a, 0).astype(jnp.int32),

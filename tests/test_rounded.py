@@ -432,6 +432,25 @@ def test_unpadded_point_and_segment_cores_in_both_dtypes():
         assert abs(float(value) - (np.hypot(3.0, 3.0) - 0.7)) <= 1e-6
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_non_finite_poses_of_spheres_and_capsules_give_nan(bad):
+    """The closed form of point and segment cores: a NaN or inf in a pose gives NaN values,
+    points, normals and gradients (not the plausible 0 of touching cores), and intersects
+    False."""
+    upright = np.array([1.0, 0.0, 0.0, 0.0])
+    origin = jaxsat.pose3(np.zeros(3), upright)
+    broken = jaxsat.pose3(np.array([bad, 0.0, 0.0]), upright)
+    for a, b in ((jaxsat.capsule(1.0, 0.2), jaxsat.sphere(0.3)),
+                 (jaxsat.sphere(0.3), jaxsat.capsule(1.0, 0.2))):
+        found = jaxsat.closest_points(a, origin, b, broken)
+        for leaf in jax.tree.leaves((found, jaxsat.penetration(a, origin, b, broken))):
+            assert np.all(np.isnan(np.asarray(leaf)))
+        gradient = jax.grad(lambda pose, a=a, b=b: jaxsat.signed_distance(a, origin, b, pose))(
+            broken)
+        assert np.all(np.isnan(np.asarray(gradient.translation)))
+        assert not bool(jaxsat.intersects(a, origin, b, broken))
+
+
 def test_a_stack_of_circles_capsules_and_polygons_batches_like_single_calls():
     """Mixed kinds in one stack (padded to one size class; sharp entries get radius 0): the
     batched answers equal the single calls on the unpadded shapes."""
