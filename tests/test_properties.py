@@ -219,14 +219,14 @@ def test_a_common_rigid_motion_moves_points_and_normals_and_keeps_values(query, 
         # Where the closest features are parallel (an edge along a face, say) the witness
         # points are not unique even when the normal is, and the search may pick another
         # pair after the motion: each pair, moved back, must lie on the two shapes.
-        for name, points in (("before", (out.point_a, out.point_b)),
-                             ("after", ((after.point_a - shift) @ rotation,
-                                        (after.point_b - shift) @ rotation))):
-            for i in np.nonzero(finite)[0]:
-                for side, point, world in ((0, points[0][i], refs[i].world_a),
-                                           (1, points[1][i], refs[i].world_b)):
-                    gap = oracle.distance_to_hull(ConvexHull(world), point)
-                    assert gap < 10 * tol[i], (name, i, side, gap)
+        moved_back = {"point_a": (after.point_a - shift) @ rotation,
+                      "point_b": (after.point_b - shift) @ rotation}
+        for i in np.nonzero(finite)[0]:
+            for field, world in (("point_a", refs[i].world_a), ("point_b", refs[i].world_b)):
+                hull = ConvexHull(world)
+                for name, points in (("before", getattr(out, field)), ("after", moved_back[field])):
+                    gap = oracle.distance_to_hull(hull, points[i])
+                    assert gap < 10 * tol[i], (name, i, field, gap)
     if query == "contacts":  # the same set of points (the order of ties may change)
         expected = out.points @ rotation.T + shift
         for i in np.nonzero(unique)[0]:
