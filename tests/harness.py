@@ -20,6 +20,7 @@ import oracle
 import pytest
 
 import jaxsat
+from jaxsat._pair import EAGER_COMPILER_OPTIONS
 
 BATCH = 64
 """Every batched call uses this many pairs (the last chunk is padded), so nothing recompiles."""
@@ -36,16 +37,13 @@ NORMAL_TOLERANCE = {np.float64: 1e-7, np.float32: 1e-3}
 DTYPES = [np.float64, np.float32]
 DTYPE_IDS = ["float64", "float32"]
 
-FAST_COMPILE = {
-    "xla_cpu_use_fusion_emitters": False,
-    "xla_backend_optimization_level": 0,
-    "xla_llvm_disable_expensive_passes": True,
-}
-"""XLA's cheaper CPU settings, for test kernels that batch many pairs with their derivatives
-(about half their compile time). Not what users run: the oracle tests of test_sat and
-test_distance, the scene tests and the benchmarks use the default build. These settings have
-produced NaN Hessian entries and, combined, a wrong GJK simplex where the default build did
-not, so a failure seen only under them is checked against the default build first."""
+FAST_COMPILE = EAGER_COMPILER_OPTIONS
+"""XLA's cheaper CPU settings (those of eager calls), for test kernels that batch many pairs
+with their derivatives (about half their compile time). Not what a user's own jit runs: the
+oracle tests of test_sat and test_distance, the scene tests and the benchmarks use the default
+build. These settings have produced NaN Hessian entries and, combined, a wrong GJK simplex
+where the default build did not, so a failure seen only under them is checked against the
+default build first."""
 
 
 # --------------------------------------------------------------------------------------------
