@@ -135,10 +135,9 @@ def closest_pair_of_segments(a_vertices, b_vertices) -> ExactDistance:
     In 3D two segments never overlap with a positive depth (a translation along their common
     perpendicular, however small, separates them), so the signed distance of the cores is
     their Euclidean distance. The closest pair minimises |a(s) - b(t)|^2 over the unit
-    square: the stationary point clamped to [0, 1] in s, then t for that s clamped, then s
-    again for that t (exact for a convex quadratic on a square; parallel segments take s = 0
-    first). Where the segments touch (|q - p| = 0) the axis is their common perpendicular,
-    or any direction across a's segment if they are parallel, or x for two points.
+    square (`_kernels.segment_closest_parameters`). Where the segments touch (|q - p| = 0)
+    the axis is their common perpendicular, or any direction across a's segment if they are
+    parallel, or x for two points.
 
     The witness is written as D + 1 shared weights on vertex pairs, as GJK's simplex: with
     s >= t the pairs (a0, b0), (a1, b0), (a1, b1) with weights 1 - s, s - t, t (else
@@ -148,17 +147,10 @@ def closest_pair_of_segments(a_vertices, b_vertices) -> ExactDistance:
     a0, a1 = k.as_vec(a_vertices[0]), k.as_vec(a_vertices[-1])
     b0, b1 = k.as_vec(b_vertices[0]), k.as_vec(b_vertices[-1])
     along_a, along_b, offset = k.vsub(a1, a0), k.vsub(b1, b0), k.vsub(a0, b0)
-    aa, bb, ab = k.vdot(along_a, along_a), k.vdot(along_b, along_b), k.vdot(along_a, along_b)
-    a_offset, b_offset = k.vdot(along_a, offset), k.vdot(along_b, offset)
+    aa, bb = k.vdot(along_a, along_a), k.vdot(along_b, along_b)
+    s, t, crossing = k.segment_closest_parameters(offset, along_a, along_b)
     eps = jnp.finfo(dtype).eps
     has_a, has_b = aa > 0, bb > 0
-    determinant = aa * bb - ab * ab
-    # Parallel within rounding: every s has a closest t, and s = 0 is as good as any.
-    crossing = determinant > 16 * eps * aa * bb
-    s = jnp.clip(k.safe_divide(ab * b_offset - a_offset * bb, determinant, crossing & has_a),
-                 0.0, 1.0)
-    t = jnp.clip(k.safe_divide(ab * s + b_offset, bb, has_b), 0.0, 1.0)
-    s = jnp.clip(k.safe_divide(ab * t - a_offset, aa, has_a), 0.0, 1.0)
     p = k.vadd(a0, k.vscale(s, along_a))
     q = k.vadd(b0, k.vscale(t, along_b))
     gap = k.vsub(q, p)

@@ -52,6 +52,7 @@ import numpy as np
 from jaxsat._closest import exact_distance, witness
 from jaxsat._halfspace import HalfSpace, is_plane_pair
 from jaxsat._kernels import (
+    as_vec,
     chord,
     cross,
     cross2,
@@ -60,6 +61,7 @@ from jaxsat._kernels import (
     orthonormal_basis,
     rotate,
     safe_divide,
+    segment_closest_parameters,
     where,
 )
 from jaxsat._pair import PairFrame, cast_pair, compiled_query, pair_frame, relative_pose
@@ -680,21 +682,7 @@ def _widest(across, valid, first, second, min_area):
 
 
 def _closest_midpoint(start_1, end_1, start_2, end_2):
-    """Midpoint of the closest points of two segments (Ericson, Real-Time Collision Detection
-    5.1.9), with every division guarded so that degenerate segments give finite values."""
+    """Midpoint of the closest points of two segments (`_kernels.segment_closest_parameters`)."""
     d1, d2, r = end_1 - start_1, end_2 - start_2, start_1 - start_2
-    a, e, f = dot(d1, d1), dot(d2, d2), dot(d2, r)
-    c, b = dot(d1, r), dot(d1, d2)
-    # Divided by the squared lengths, every product below is free of the shapes' scale: raw,
-    # a * e is the fourth power of a length, and the derivative of a division by it (its
-    # square) underflows to 0 in float32 for shapes of size 1e-6, giving inf * 0 = NaN.
-    squared_lengths = a + e
-    a, e, f, c, b = (safe_divide(x, squared_lengths, squared_lengths > 0) for x in (a, e, f, c, b))
-    denominator = a * e - b * b
-    eps = jnp.finfo(a.dtype).eps
-    s = jnp.clip(safe_divide(b * f - c * e, denominator, denominator > eps * a * e), 0.0, 1.0)
-    t = safe_divide(b * s + f, e, e > 0)
-    s = where(t < 0, jnp.clip(safe_divide(-c, a, a > 0), 0.0, 1.0), s)
-    s = where(t > 1, jnp.clip(safe_divide(b - c, a, a > 0), 0.0, 1.0), s)
-    t = jnp.clip(t, 0.0, 1.0)
+    s, t, _ = segment_closest_parameters(as_vec(r), as_vec(d1), as_vec(d2))
     return (start_1 + s * d1 + start_2 + t * d2) / 2

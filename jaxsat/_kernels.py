@@ -61,6 +61,7 @@ __all__ = [
     "safe_divide",
     "safe_normalize",
     "safe_sqrt",
+    "segment_closest_parameters",
     "support_index",
     "take_vec",
     "Vec",
@@ -144,6 +145,61 @@ def safe_normalize(vectors, min_squared_norm):
     valid = squared > min_squared_norm
     safe_squared = where(valid, squared, 1.0)
     return where(valid, vectors * jax.lax.rsqrt(safe_squared), 0.0), valid[..., 0]
+
+
+def segment_closest_parameters(offset: Vec, along_a: Vec, along_b: Vec):
+    """(s, t, crossing) for two segments a0 + s along_a and b0 + t along_b, offset = a0 - b0
+    (component form): s, t in [0, 1] minimise |a(s) - b(t)|, and `crossing` says that the
+    segments are not parallel within rounding.
+
+    The minimum of this convex quadratic over the unit square is its stationary point or lies
+    on one of the square's 4 edges, where it is a point's closest point on a segment. All 5
+    candidates are taken, clamped to the square, and the one whose gap vector is shortest
+    wins: the stationary point alone is ill-conditioned for nearly parallel segments (there a
+    rule that clamps it and walks to an edge can stop a float32 distance 1e-3 of the length
+    off), while each edge's problem divides only by a squared length. The stationary point is
+    skipped below an angle of about eps between the segments, where its parameters would
+    overflow; the edges then hold the minimum within rounding. A segment that is a point
+    keeps parameter 0.
+
+    The products are divided by |along_a|^2 + |along_b|^2 first, so that none carries the
+    shapes' scale: raw, their products are lengths to the fourth, and the derivative of a
+    division by one (its square) underflows to 0 in float32 for shapes of size 1e-6, giving
+    inf * 0 = NaN."""
+    aa, bb, ab = vdot(along_a, along_a), vdot(along_b, along_b), vdot(along_a, along_b)
+    a_offset, b_offset = vdot(along_a, offset), vdot(along_b, offset)
+    total = aa + bb
+    aa, bb, ab, a_offset, b_offset = (safe_divide(x, total, total > 0)
+                                      for x in (aa, bb, ab, a_offset, b_offset))
+    eps = jnp.finfo(aa.dtype).eps
+    determinant = aa * bb - ab * ab
+    crossing = determinant > 16 * eps * aa * bb
+    solvable = determinant > eps * eps * aa * bb
+
+    def on_b(s):  # the t closest to a(s)
+        return jnp.clip(safe_divide(ab * s + b_offset, bb, bb > 0), 0.0, 1.0)
+
+    def on_a(t):  # the s closest to b(t)
+        return jnp.clip(safe_divide(ab * t - a_offset, aa, aa > 0), 0.0, 1.0)
+
+    zero, one = jnp.zeros_like(aa), jnp.ones_like(aa)
+    stationary = (jnp.clip(safe_divide(ab * b_offset - a_offset * bb, determinant, solvable),
+                           0.0, 1.0),
+                  jnp.clip(safe_divide(aa * b_offset - ab * a_offset, determinant, solvable),
+                           0.0, 1.0))
+    candidates = [stationary, (zero, on_b(zero)), (one, on_b(one)), (on_a(zero), zero),
+                  (on_a(one), one)]
+    best_s = best_t = best = None
+    for s, t in candidates:
+        gap = vsub(vadd(offset, vscale(s, along_a)), vscale(t, along_b))
+        squared = vdot(gap, gap)
+        if best is None:
+            best_s, best_t, best = s, t, squared
+        else:
+            better = squared < best
+            best_s, best_t, best = (where(better, s, best_s), where(better, t, best_t),
+                                    where(better, squared, best))
+    return best_s, best_t, crossing
 
 
 def orthonormal_basis(normal):

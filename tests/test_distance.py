@@ -454,9 +454,9 @@ from that vertex to the edge shortens |v| by a second-order amount only."""
 def test_eager_calls_agree_with_the_oracle_on_a_flat_gjk_stop(dtype):
     """An eager call gives the oracle's distance, within 1e-9 of the size in float64 and 1e-5
     in float32, with the cheaper CPU compile settings eager calls use (once the float64 eager
-    build returned the SAT gap there, 1.3e-3 short); in float32 GJK stopped at the vertex (a's edge shortens
-    |v|^2 by less than its rounding) and the gap along that vertex pair's axis was 1.4e-4
-    short."""
+    build returned the SAT gap there, 1.3e-3 short); in float32 GJK stopped at the vertex (a's
+    edge shortens |v|^2 by less than its rounding) and the gap along that vertex pair's axis
+    was 1.4e-4 short."""
     half_a, params_a, half_b, params_b = (np.asarray(x, np.float64) for x in FLAT_STOP_BOXES)
     a, b = jaxsat.box(half_a, dtype=dtype), jaxsat.box(half_b, dtype=dtype)
     pose_a = make_pose((params_a[:3].astype(dtype), params_a[3:].astype(dtype)))
