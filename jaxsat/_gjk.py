@@ -231,9 +231,10 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
 
     first = support_pair(k.as_vec(direction))
     first_point = point_of(first)
-    empty = jnp.full((), -1, jnp.int32)
-    state = _State((first,) + (empty,) * dim, (first_point,) * (dim + 1),
-                   jnp.zeros((), jnp.int32), jnp.zeros((), bool))
+    # Written from `first` (0 * first is 0) so that under `vmap` every part of the state is
+    # batched from the start: the loop's batching rule then traces the body once less.
+    zero = 0 * first
+    state = _State((first,) + (zero - 1,) * dim, (first_point,) * (dim + 1), zero, zero > 0)
     state = jax.lax.while_loop(going, step, state)
     weights = simplex_weights(list(state.points), state.pairs)
     pairs = jnp.stack([jnp.maximum(pair, 0) for pair in state.pairs])

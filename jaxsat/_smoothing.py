@@ -301,9 +301,12 @@ def _search(frame: PairFrame, tau, start):
         return (where(better, jnp.stack(trial), jnp.stack(axis)),
                 where(better, trial_packed, packed), radius, boost.astype(radius.dtype))
 
-    radius = jnp.minimum(_FIRST_RADIUS * tau / extent, _MAX_RADIUS)
-    state = (start, _packed_moments(summary, kernels.as_vec(start), tau), radius,
-             jnp.ones((), frame.dtype))
+    # The radius and the boost are written from the start (0 * start is 0) so that under
+    # `vmap` (over pairs, and over the two starts) the whole state is batched from the start:
+    # each loop batching rule then traces the step once less.
+    zero = 0 * start[0]
+    radius = jnp.minimum(_FIRST_RADIUS * tau / extent, _MAX_RADIUS) + zero
+    state = (start, _packed_moments(summary, kernels.as_vec(start), tau), radius, 1 + zero)
     axis, packed, _, _ = jax.lax.fori_loop(0, NEWTON_STEPS, step, state)
     axis = kernels.as_vec(axis)
     gradient = _riemannian(axis, _unpack(summary, packed), tau)[1]
