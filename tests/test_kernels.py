@@ -145,8 +145,11 @@ def _segment_cases(rng) -> list[tuple[str, np.ndarray]]:
     return cases
 
 
-def _parameters(points, dtype):
-    a0, a1, b0, b1 = (jnp.asarray(p, dtype) for p in points)
+@jax.jit
+@jax.vmap
+def _parameters(points):
+    """segment_closest_parameters of (4, D) points a0, a1, b0, b1, batched."""
+    a0, a1, b0, b1 = points
     return segment_closest_parameters(tuple(a0 - b0), tuple(a1 - a0), tuple(b1 - b0))
 
 
@@ -155,18 +158,19 @@ def test_segment_closest_parameters_minimise_the_distance():
     size in float64 and 1e-6 in float32, and a segment that is a point keeps parameter 0.
     Nearly parallel pairs are where a rule that clamps the stationary point and walks to an
     edge goes wrong."""
+    names, cases = zip(*_segment_cases(np.random.default_rng(5)), strict=True)
     for dtype, tolerance in ((np.float64, 1e-12), (np.float32, 1e-6)):
-        for name, points in _segment_cases(np.random.default_rng(5)):
-            points = points.astype(dtype).astype(np.float64)
-            s, t, _ = (float(x) for x in _parameters(points, dtype))
-            a0, a1, b0, b1 = points
-            assert 0.0 <= s <= 1.0 and 0.0 <= t <= 1.0, name
-            got = np.linalg.norm(a0 + s * (a1 - a0) - b0 - t * (b1 - b0))
-            size = np.abs(points).max()
-            assert got <= oracle.segment_distance(*points) + tolerance * size, (name, dtype)
-    s, t, crossing = _parameters(np.array([[0, 0, 0], [2, 0, 0], [1.5, 1, 0], [1.5, 1, 0.0]]),
-                                 np.float64)
-    assert (float(s), float(t), bool(crossing)) == (0.75, 0.0, False)
+        points = np.stack(cases).astype(dtype)
+        s, t, crossing = (np.asarray(x, np.float64) for x in _parameters(jnp.asarray(points)))
+        points = points.astype(np.float64)
+        for i, name in enumerate(names):
+            a0, a1, b0, b1 = points[i]
+            assert 0.0 <= s[i] <= 1.0 and 0.0 <= t[i] <= 1.0, name
+            got = np.linalg.norm(a0 + s[i] * (a1 - a0) - b0 - t[i] * (b1 - b0))
+            size = np.abs(points[i]).max()
+            assert got <= oracle.segment_distance(*points[i]) + tolerance * size, (name, dtype)
+        point_case = names.index("segment-and-point")
+        assert (s[point_case], t[point_case], crossing[point_case]) == (0.75, 0.0, 0.0)
     midpoint = _closest_midpoint(*(jnp.asarray(p, jnp.float64) for p in
                                    [[0, 0, 0], [2, 0, 0], [1.5, 1, 0], [1.5, 1, 0]]))
     np.testing.assert_allclose(midpoint, [1.5, 0.5, 0.0], atol=1e-15)
@@ -176,9 +180,9 @@ def test_segment_closest_parameters_have_finite_gradients_at_any_scale():
     """float32 segments of size 1e-6 and 1e3, crossing, parallel and degenerate: finite
     gradients of the closest points' midpoint (the products are scale-free before they are
     divided)."""
+    gradient = jax.jit(jax.vmap(jax.grad(
+        lambda p: jnp.sum(_closest_midpoint(p[0], p[1], p[2], p[3])))))
+    cases = np.stack([points for _, points in _segment_cases(np.random.default_rng(6))[-5:]])
     for scale in (1e-6, 1.0, 1e3):
-        for name, points in _segment_cases(np.random.default_rng(6))[-5:]:
-            points = jnp.asarray(points * scale, jnp.float32)
-            gradient = jax.grad(lambda p: jnp.sum(_closest_midpoint(p[0], p[1], p[2], p[3])))(
-                points)
-            assert np.all(np.isfinite(np.asarray(gradient))), (name, scale)
+        found = np.asarray(gradient(jnp.asarray(cases * scale, jnp.float32)))
+        assert np.all(np.isfinite(found)), scale

@@ -143,7 +143,7 @@ def test_float_outputs_follow_the_input_dtype(query, size_class, dtype):
     assert all(leaf.dtype == dtype for leaf in floats), [leaf.dtype for leaf in floats]
 
 
-@pytest.mark.slow  # each eager call compiles its query with the default build: 0.5-6 s
+@pytest.mark.slow  # each eager call compiles its query (0.2-4 s)
 @every_query_class_dtype
 def test_jitted_vmap_equals_eager_calls_pair_by_pair(query, size_class, dtype):
     pairs = random_pairs(pool(size_class, dtype), pool(size_class, dtype), 2,
