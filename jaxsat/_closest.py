@@ -149,6 +149,9 @@ def closest_pair_of_segments(a_vertices, b_vertices) -> ExactDistance:
     along_a, along_b, offset = k.vsub(a1, a0), k.vsub(b1, b0), k.vsub(a0, b0)
     aa, bb = k.vdot(along_a, along_a), k.vdot(along_b, along_b)
     s, t, crossing = k.segment_closest_parameters(offset, along_a, along_b)
+    # Stored once, as one leaf (rule 5 of `_kernels`): every output reads s and t, and the
+    # choice between the two starts must be the same in all of them.
+    s, t = k.materialize(jnp.stack([s, t]))
     eps = jnp.finfo(dtype).eps
     has_a, has_b = aa > 0, bb > 0
     p = k.vadd(a0, k.vscale(s, along_a))

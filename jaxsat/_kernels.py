@@ -152,14 +152,11 @@ def segment_closest_parameters(offset: Vec, along_a: Vec, along_b: Vec):
     (component form): s, t in [0, 1] minimise |a(s) - b(t)|, and `crossing` says that the
     segments are not parallel within rounding.
 
-    The minimum of this convex quadratic over the unit square is its stationary point or lies
-    on one of the square's 4 edges, where it is a point's closest point on a segment. All 5
-    candidates are taken, clamped to the square, and the one whose gap vector is shortest
-    wins: the stationary point alone is ill-conditioned for nearly parallel segments (there a
-    rule that clamps it and walks to an edge can stop a float32 distance 1e-3 of the length
-    off), while each edge's problem divides only by a squared length. The stationary point is
-    skipped below an angle of about eps between the segments, where its parameters would
-    overflow; the edges then hold the minimum within rounding. A segment that is a point
+    A minimising pair is found from a start s by t = the t closest to a(s), then s = the s
+    closest to b(t), each clamped to [0, 1]: from the stationary s (clamped) that is exact for
+    this convex quadratic on the unit square. Segments parallel within a few eps (no
+    stationary s) take the better of the starts s = 0 and s = 1: the two ends of the stretch
+    where the segments lie side by side, one of which is closest. A segment that is a point
     keeps parameter 0.
 
     The products are divided by |along_a|^2 + |along_b|^2 first, so that none carries the
@@ -172,34 +169,33 @@ def segment_closest_parameters(offset: Vec, along_a: Vec, along_b: Vec):
     aa, bb, ab, a_offset, b_offset = (safe_divide(x, total, total > 0)
                                       for x in (aa, bb, ab, a_offset, b_offset))
     eps = jnp.finfo(aa.dtype).eps
-    determinant = aa * bb - ab * ab
-    crossing = determinant > 16 * eps * aa * bb
-    solvable = determinant > eps * eps * aa * bb
 
-    def on_b(s):  # the t closest to a(s)
-        return jnp.clip(safe_divide(ab * s + b_offset, bb, bb > 0), 0.0, 1.0)
-
-    def on_a(t):  # the s closest to b(t)
-        return jnp.clip(safe_divide(ab * t - a_offset, aa, aa > 0), 0.0, 1.0)
-
-    zero, one = jnp.zeros_like(aa), jnp.ones_like(aa)
-    stationary = (jnp.clip(safe_divide(ab * b_offset - a_offset * bb, determinant, solvable),
-                           0.0, 1.0),
-                  jnp.clip(safe_divide(aa * b_offset - ab * a_offset, determinant, solvable),
-                           0.0, 1.0))
-    candidates = [stationary, (zero, on_b(zero)), (one, on_b(one)), (on_a(zero), zero),
-                  (on_a(one), one)]
-    best_s = best_t = best = None
-    for s, t in candidates:
+    def descend(s):
+        t = jnp.clip(safe_divide(ab * s + b_offset, bb, bb > 0), 0.0, 1.0)
+        s = jnp.clip(safe_divide(ab * t - a_offset, aa, aa > 0), 0.0, 1.0)
         gap = vsub(vadd(offset, vscale(s, along_a)), vscale(t, along_b))
-        squared = vdot(gap, gap)
-        if best is None:
-            best_s, best_t, best = s, t, squared
-        else:
-            better = squared < best
-            best_s, best_t, best = (where(better, s, best_s), where(better, t, best_t),
-                                    where(better, squared, best))
-    return best_s, best_t, crossing
+        return s, t, vdot(gap, gap)
+
+    # The stationary s from cross products, n = along_a x along_b (Lagrange's identity: aa bb
+    # - ab^2 = |n|^2): each component of n rounds to eps |along_a| |along_b|, where aa bb -
+    # ab^2 keeps only eps aa bb, so that segments down to a few eps from parallel keep
+    # digits. Divided by aa + bb as above.
+    scale = safe_divide(1.0, total, total > 0)
+    if len(offset) == 3:
+        normal = vscale(scale, vcross(along_a, along_b))
+        normal_squared = vdot(normal, normal)
+        numerator = vdot(normal, vscale(scale, vcross(along_b, offset)))
+    else:
+        normal = scale * vcross2(along_a, along_b)
+        normal_squared = normal * normal
+        numerator = normal * scale * vcross2(along_b, offset)
+    crossing = normal_squared > 16 * eps * aa * bb
+    stationary = safe_divide(numerator, normal_squared, normal_squared > (16 * eps) ** 2 * aa * bb)
+    s_first, t_first, first = descend(jnp.clip(stationary, 0.0, 1.0))
+    s_second, t_second, second = descend(jnp.ones_like(aa))
+    use_second = second < first
+    return (where(use_second, s_second, s_first), where(use_second, t_second, t_first),
+            crossing)
 
 
 def orthonormal_basis(normal):

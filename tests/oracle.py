@@ -165,9 +165,20 @@ def segment_closest_points(p0, p1, q0, q1) -> tuple[np.ndarray, np.ndarray]:
         candidates.append((s, clamped(e + s * b, c)))
     for t in (0.0, 1.0):  # s minimising |w - t v + s u|^2
         candidates.append((clamped(t * b - d, a), t))
-    determinant = a * c - b * b
-    if determinant > 1e-14 * max(a * c, 1e-300):
-        s, t = (b * e - c * d) / determinant, (a * e - b * d) / determinant
+    # The stationary point by Cramer's rule with the determinant a c - b^2 written as |u x v|^2
+    # (Lagrange's identity), and both numerators as cross-product dot products: a c - b^2
+    # itself cancels to rounding for nearly parallel segments.
+    if len(u) == 3:
+        normal = np.cross(u, v)
+        determinant = float(normal @ normal)
+        numerators = (float(normal @ np.cross(v, w)), float(normal @ np.cross(u, w)))
+    else:
+        normal = float(u[0] * v[1] - u[1] * v[0])
+        determinant = normal * normal
+        numerators = (normal * float(v[0] * w[1] - v[1] * w[0]),
+                      normal * float(u[0] * w[1] - u[1] * w[0]))
+    if determinant > 1e-28 * max(a * c, 1e-300):
+        s, t = numerators[0] / determinant, numerators[1] / determinant
         if 0.0 <= s <= 1.0 and 0.0 <= t <= 1.0:
             candidates.append((s, t))
     s, t = min(candidates, key=lambda st: squared(*st))

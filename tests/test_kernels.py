@@ -126,8 +126,8 @@ def test_materialize_keeps_integers_and_booleans():
 
 
 def _segment_cases(rng) -> list[tuple[str, np.ndarray]]:
-    """(name, (4, 3) array a0, a1, b0, b1): random, crossing, nearly parallel, parallel,
-    point and segment, two points."""
+    """(name, (4, 3) array a0, a1, b0, b1): random, crossing, nearly parallel (apart, and
+    crossing at a small angle), parallel, point and segment, two points."""
     cases = [(f"random-{i}", rng.normal(size=(4, 3))) for i in range(200)]
     for i in range(200):
         a0, direction = rng.normal(size=3), rng.normal(size=3)
@@ -135,6 +135,16 @@ def _segment_cases(rng) -> list[tuple[str, np.ndarray]]:
         b0 = a0 + rng.normal(size=3) * 0.3
         cases.append((f"near-parallel-{i}", np.stack(
             [a0, a0 + direction, b0, b0 + rng.uniform(0.3, 2.0) * (direction + tilt)])))
+    for i in range(200):  # crossing at one point, 1e-7 to 1e-1 radians apart
+        angle = 10.0 ** rng.uniform(-7, -1)
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        across = np.cross(direction, rng.normal(size=3))
+        turned = np.cos(angle) * direction + np.sin(angle) * across / np.linalg.norm(across)
+        crossing, (u, v) = rng.normal(size=3), rng.uniform(0.2, 0.8, 2)
+        cases.append((f"nearly-parallel-crossing-{i}", np.stack(
+            [crossing - u * direction, crossing + (1 - u) * direction, crossing - v * turned,
+             crossing + (1 - v) * turned])))
     cases += [
         ("parallel-overlapping", np.array([[0, 0, 0], [2, 0, 0], [1, 1, 0], [3, 1, 0.0]])),
         ("crossing", np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 1], [0, 1, 1.0]])),
@@ -157,7 +167,7 @@ def test_segment_closest_parameters_minimise_the_distance():
     """The parameters' distance equals the enumerated minimum within 1e-12 of the segments'
     size in float64 and 1e-6 in float32, and a segment that is a point keeps parameter 0.
     Nearly parallel pairs are where a rule that clamps the stationary point and walks to an
-    edge goes wrong."""
+    edge goes wrong, and where a stationary point from aa bb - ab^2 loses its digits."""
     names, cases = zip(*_segment_cases(np.random.default_rng(5)), strict=True)
     for dtype, tolerance in ((np.float64, 1e-12), (np.float32, 1e-6)):
         points = np.stack(cases).astype(dtype)

@@ -441,18 +441,19 @@ def _quaternion_from_z(direction) -> np.ndarray:
 
 @pytest.mark.parametrize("dtype", harness.DTYPES, ids=harness.DTYPE_IDS)
 def test_nearly_parallel_capsules_match_the_closed_form(dtype):
-    """Capsules whose cores are 1e-6 to 1e-2 radians from parallel, at distances up to their
-    length: the closed-form oracle's value within 1e-5 of the size in float32 and 1e-9 in
-    float64. A rule that clamped the cores' stationary point and then walked to an edge gave
-    float32 values up to 5e-4 too large here."""
+    """Capsules whose cores are 1e-6 to 1e-2 radians from parallel, side by side, crossing, or
+    at distances up to their length: the closed-form oracle's value within 1e-5 of the size in
+    float32 and 1e-9 in float64. Before, float32 values were up to 5e-4 too large here: a rule
+    that clamped the cores' stationary point and then walked to an edge, and a stationary
+    point from aa bb - ab^2, which cancels for nearly parallel cores."""
     rng = np.random.default_rng(11)
     rod = jaxsat.capsule(np.asarray(0.5, dtype), np.asarray(0.05, dtype))
-    # Cores side by side 0.1 apart, overlapping over half their length, turned by angle in
-    # the plane they span (both senses); then random nearly parallel pairs.
+    # Cores side by side 0.1 apart, overlapping over half their length, or crossing, turned
+    # by angle in the plane they span (both senses); then random nearly parallel pairs.
     cases = [(np.array([np.sin(sense * angle), 0.0, np.cos(angle)]),
-              np.array([0.1, 0.0, shift]))
+              np.array([apart, 0.0, shift]))
              for angle in 10.0 ** np.arange(-6.0, -1.0) for sense in (1, -1)
-             for shift in (0.5, -0.5)]
+             for shift in (0.5, -0.5) for apart in (0.1, 0.0)]
     for _ in range(64):
         direction = rng.normal(size=3)
         direction /= np.linalg.norm(direction)
