@@ -80,6 +80,10 @@ class ProjectedAxes(NamedTuple):
 _ROW_BLOCK = 8
 """Rows of Gauss-map edge-pair depths computed and reduced at a time (`GaussMapAxes`)."""
 
+_LOOP_ROWS = 24
+"""Hulls with more edges than this (20-vertex hulls have 54; 8-vertex hulls at most 18) take
+the Gauss-map row minima in a loop of `_ROW_BLOCK` rows."""
+
 
 class GaussMapAxes(NamedTuple):
     """Edge-edge candidates of two hulls, one per pair of hull edges (K_a, K_b), with depths
@@ -107,11 +111,13 @@ class GaussMapAxes(NamedTuple):
         return _gauss_map_depths(self.edges_a, self.edges_b)
 
     def row_minima(self) -> jax.Array:
-        """(K_a,) the smallest depth of each row, computed _ROW_BLOCK rows at a time in a
-        loop: XLA hands a large min reduction to a library call that stores its whole input
-        (all K_a x K_b depths of 1e5 pairs of 20-vertex hulls take 1.1 GB), and blocks
-        outside a loop would all be stored at once."""
+        """(K_a,) the smallest depth of each row; for more than _LOOP_ROWS rows, computed
+        _ROW_BLOCK rows at a time in a loop: XLA hands a large min reduction to a library
+        call that stores its whole input (all K_a x K_b depths of 1e5 pairs of 20-vertex
+        hulls take 1.1 GB), and blocks outside a loop would all be stored at once."""
         count = self.edges_a[0].shape[0]
+        if count <= _LOOP_ROWS:  # small enough to store; a loop costs compile time
+            return jnp.min(self.depths, axis=1)
         blocks = -(-count // _ROW_BLOCK)
         # Padded by repeating row 0 (its depths again), cut off at the end.
         padded = tuple(jnp.concatenate([part, jnp.broadcast_to(
