@@ -29,7 +29,8 @@ CLOUDS = {
 
 
 @pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.slow)
-                                  if name == "sphere162-to-32" else name for name in CLOUDS])
+                                  if name in ("sphere162-to-32", "ellipsoid300-to-20") else name
+                                  for name in CLOUDS])
 def test_capped_hull_fits_contains_the_points_and_reports_its_added_volume(name):
     points, max_vertices = CLOUDS[name]
     capped = jaxsat.cap_hull(points, max_vertices)

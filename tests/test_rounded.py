@@ -828,6 +828,7 @@ def test_halfspace_constructor_normalises_and_rejects_bad_input():
         jaxsat.compound_intersects(ground, origin, "box", origin)
 
 
+@pytest.mark.slow
 def test_a_face_resting_on_a_halfspace_has_finite_unit_gradients():
     """A box face flush with the ground (4 vertices tie) and a sphere touching it: value 0,
     finite exact and smooth gradients in every input, unit-bounded in the translation."""
