@@ -95,7 +95,7 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     Jitted so that its trace is kept: a query that needs the search several times (a value,
     its gradient and forward derivatives; the smooth distance's start) traces it once, and
     `vmap` batches the traced program instead of running the Python code again (lowering a
-    box pair's value, gradient and Jacobian 4.6 -> 3.0 s). XLA inlines the call."""
+    box pair's value, gradient and Jacobian 5.2-5.5 -> 3.3-4.1 s). XLA inlines the call."""
     a_vertices, b_vertices = frame.a.vertices, frame.b_vertices
     if frame.dim == 3 and a_vertices.shape[0] <= 2 and b_vertices.shape[0] <= 2:
         return closest_pair_of_segments(a_vertices, b_vertices)
