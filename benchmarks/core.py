@@ -43,9 +43,6 @@ def ellipse(rng, count: int, symmetric: bool = False) -> np.ndarray:
     ring = np.stack([axes[0] * np.cos(angles), axes[1] * np.sin(angles)], axis=1)
     return np.concatenate([ring, -ring]) if symmetric else ring
 
-def corners(half) -> np.ndarray:
-    return np.array(list(itertools.product((-1.0, 1.0), repeat=len(half)))) * half
-
 @dataclasses.dataclass(frozen=True)
 class Geom:
     """One pool shape: `kind` ("hull": of `points`, "box", "sphere", "capsule"), local `points`
@@ -65,7 +62,8 @@ class Geom:
                     self.points, max_vertices, **sharp))()
 
 def box(half) -> Geom:
-    return Geom("box", corners(f32(half)), f32(half))
+    corners = itertools.product((-1.0, 1.0), repeat=len(half))
+    return Geom("box", np.array(list(corners)) * f32(half), f32(half))
 
 def sphere(rng) -> Geom:
     return Geom("sphere", np.zeros((1, 3)), f32([rng.uniform(0.15, 0.6), 0, 0]))
@@ -77,8 +75,7 @@ def capsule(rng) -> Geom:
 def hull_points(rng, count: int = 20) -> np.ndarray:
     """`count` points on a random ellipsoid (semi-axes 0.3-0.8): every one a hull vertex."""
     directions = rng.normal(size=(count, 3))
-    return directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(
-        0.3, 0.8, 3)
+    return directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(0.3, 0.8, 3)
 
 SETS = {
     "2d-small": ("convex 3-4-gons (jax2d's limit), padded to 4",
@@ -94,11 +91,9 @@ SETS = {
     "3d-capsules": ("capsules along z, radius 0.15-0.6, half length 0.1-0.6", capsule),
     "3d-sphere-box": ("a: spheres as above, b: boxes as above", sphere,
                       lambda rng: box(rng.uniform(0.15, 0.6, 3)))}
-"""Data set name: (description, random pool shape: a Geom or local vertices[, the same for
-side b: b draws from its own pool])."""
+"""Name: (description, random pool shape: a Geom or local vertices[, b's, from its own pool])."""
 CHUNKS = {"2d-small": 8192, "2d-polygons": 8192, "3d-boxes": 8192, "3d-hulls": 256}
-"""`query_batch` chunks whose intermediates stay in cache (measured on the 2-core CPU: boxes
-need 3.2 kB per pair, hulls 65 kB)."""
+"""`query_batch` chunks that stay in cache (a box pair needs 3.2 kB, a hull pair 65 kB)."""
 QUERIES = {"penetration": jaxsat.penetration, "intersects": jaxsat.intersects}
 """The levels a kernel or scene can be timed at (--query, --level)."""
 MAX_VERTICES = {"2d-small": 4, "2d-symmetric8": None, "3d-hulls": 20}
@@ -122,9 +117,8 @@ def rotations(params: np.ndarray, dim: int) -> np.ndarray:
 
 def pose(params) -> jaxsat.Pose:
     """The pose of parameters (x, y, angle) or (translation, quaternion w x y z) (JAX)."""
-    if params.shape[-1] == 3:
-        return jaxsat.pose2(params[0], params[1], params[2])
-    return jaxsat.pose3(params[:3], params[3:])
+    return (jaxsat.pose2(params[0], params[1], params[2]) if params.shape[-1] == 3 else
+            jaxsat.pose3(params[:3], params[3:]))
 
 @dataclasses.dataclass
 class DataSet:
@@ -138,10 +132,9 @@ class DataSet:
     split: int = 0
     def __post_init__(self):
         self.points, self.pools = [g.points for g in self.geoms], {}
-        self.dim = self.points[0].shape[1]
-        self.translation = self.params[..., :self.dim]
-        self.rotation = rotations(self.params, self.dim)
-        self.angle = self.params[..., 2] if self.dim == 2 else None
+        self.dim = dim = self.points[0].shape[1]
+        self.translation, self.rotation = self.params[..., :dim], rotations(self.params, dim)
+        self.angle = self.params[..., 2] if dim == 2 else None
         self.kinds = tuple(self.geoms[self.pick[s, 0]].kind for s in (0, 1))  # one per side
         self.sides = (slice(0, self.split or None), slice(self.split, None))
     def pool(self, side=0, dtype=np.float32, unique_axes=True):
@@ -179,10 +172,9 @@ class DataSet:
 
 def rounded_oracle(geoms, world, rotation, translation, tie_tolerance) -> oracle.Oracle:
     """Closed forms for a pair with a sphere or capsule: the cores' signed distance minus the
-    radii (depth: minus that, also apart), the normal (a to b) along the cores' closest points
-    (`oracle.segment_closest_points`; a sphere's core is a point), for a sphere and a box from
-    the centre's clamp to the box to the centre, or for a centre inside, out of the nearest
-    face (unique unless faces tie within `tie_tolerance`)."""
+    radii (depth: minus that, also apart); the normal (a to b) along the cores' closest points
+    (a sphere's core is its centre), for a sphere and a box from the centre clamped to the box
+    to the centre, or for a centre inside out of the nearest face (unique unless faces tie)."""
     kinds = [g.kind for g in geoms]
     if "box" in kinds:  # the sphere's centre in the box's frame, how far outside, face gaps
         s, half = kinds.index("box"), geoms[kinds.index("box")].size
@@ -194,8 +186,7 @@ def rounded_oracle(geoms, world, rotation, translation, tie_tolerance) -> oracle
                                 outside) * (1 - 2 * s)  # box to sphere, flipped for a box b
         unique = not inside or np.sum(gaps <= gaps[k] + tie_tolerance) == 1
     else:
-        x, y = oracle.segment_closest_points(world[0][0], world[0][-1], world[1][0],
-                                             world[1][-1])
+        x, y = oracle.segment_closest_points(world[0][0], world[0][-1], world[1][0], world[1][-1])
         core, normal, unique = np.linalg.norm(y - x), y - x, np.linalg.norm(y - x) > 1e-9
     signed = core - geoms[0].radius - geoms[1].radius
     return oracle.Oracle(-signed, normal / np.linalg.norm(normal), bool(unique), max(signed, 0.0),
@@ -203,8 +194,7 @@ def rounded_oracle(geoms, world, rotation, translation, tie_tolerance) -> oracle
 
 def make_data(name: str, pairs: int, pool: int = 256, seed: int = 0, spread=(0.0, 1.8)):
     """Data set `name`: `pool` random shapes (per side if b has its own) and `pairs` random
-    pairs of them, b's origin `spread` from a's (about half collide by default). Same
-    arguments, same data."""
+    pairs of them, b's origin `spread` from a's (about half collide by default); reproducible."""
     rng = np.random.default_rng([seed, list(SETS).index(name)])
     makers = SETS[name][1:]
     geoms = [made if isinstance(made := make(rng), Geom) else Geom("hull", f32(made))
@@ -241,15 +231,21 @@ def reference(data: DataSet, count: int) -> Reference:
     return Reference(*(np.array([getattr(r, key) for r in found]) for key in
                        ("depth", "normal", "normal_is_unique", "distance")))
 
-def oracle_gradient(data: DataSet, i: int, columns, agreement: float):
-    """Central differences of the oracle signed distance of pair i in the pose parameters
-    `columns` (a's then b's): (the gradient at the smaller step, whether both steps agree
-    within `agreement`; not: a kink within a step)."""
-    base, estimates = data.params[:, i].reshape(-1), []
-    for step in FD_STEPS:
-        estimates.append(np.array([(data.signed(i, base + s) - data.signed(i, base - s)) / (
-            2 * step) for s in np.eye(len(base))[list(columns)] * step]))
-    return estimates[-1], bool(np.linalg.norm(estimates[0] - estimates[-1]) <= agreement)
+def oracle_gradients(data: DataSet, pairs, columns, agreement: float, count=None):
+    """Central differences of the oracle signed distance in the pose parameters `columns` (a's
+    then b's) at `pairs` where both steps agree within `agreement` (else a kink within a step),
+    until `count` are kept: (the pairs kept, their gradients at the smaller step)."""
+    kept, gradients = [], []
+    for i in map(int, pairs):
+        if len(kept) == count:
+            break
+        base = data.params[:, i].reshape(-1)
+        coarse, fine = ([(data.signed(i, base + s) - data.signed(i, base - s)) / (2 * step)
+                         for s in np.eye(len(base))[list(columns)] * step] for step in FD_STEPS)
+        if np.linalg.norm(np.subtract(coarse, fine)) <= agreement:
+            kept.append(i)
+            gradients.append(fine)
+    return np.array(kept, int), np.reshape(gradients, (len(kept), len(columns)))
 
 @dataclasses.dataclass
 class Timing:
@@ -289,13 +285,16 @@ class Compiled:
     flops: float | None = None
     bytes_accessed: float | None = None
 
+def timed(function):
+    """(function(), the seconds it took)."""
+    start = time.perf_counter()
+    return function(), time.perf_counter() - start
+
 def compile_aot(function, *arguments) -> Compiled:
     """`jax.jit(function)` compiled for these (real or abstract) arguments."""
-    start = time.perf_counter()
-    executable = jax.jit(function).lower(*arguments).compile()
-    compiled = Compiled(executable, time.perf_counter() - start)
+    compiled = Compiled(*timed(lambda: jax.jit(function).lower(*arguments).compile()))
     try:
-        stats, cost = executable.memory_analysis(), executable.cost_analysis()
+        stats, cost = compiled.call.memory_analysis(), compiled.call.cost_analysis()
         cost = cost[0] if isinstance(cost, list) else cost
         compiled.temp_bytes, compiled.memory_bytes = stats.temp_size_in_bytes, (
             stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes)
@@ -322,29 +321,23 @@ def available_memory_bytes() -> int | None:
     found = read_proc("/proc/meminfo", "MemAvailable")
     return int(found.split()[0]) * 1024 if found else None
 
-def _run(*command) -> str | None:
+def _git(*command) -> str | None:
     try:
-        return subprocess.run(command, capture_output=True, text=True, timeout=10,
-                              check=True).stdout.strip()
+        return subprocess.run(("git", "-C", str(HERE), *command), capture_output=True, text=True,
+                              timeout=10, check=True).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return None
 
 def machine_info(distributions=("jax", "jaxlib", "jaxsat", "numpy", "scipy")) -> dict:
-    """Date, platform, CPU, load, memory, versions, git commit ("+dirty": uncommitted changes)
-    and JAX devices."""
-    def version(name):
-        try:
-            return importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            return None
-    commit = _run("git", "-C", str(HERE), "rev-parse", "--short", "HEAD")
-    dirty = commit and _run("git", "-C", str(HERE), "status", "--porcelain")
+    """Date, platform, CPU, load, memory, versions, git commit (+dirty if changed), devices."""
+    commit, dirty = _git("rev-parse", "--short", "HEAD"), _git("status", "--porcelain")
     return {"date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat("T", "seconds"),
             "platform": platform.platform(), "python": platform.python_version(),
             "cpu_model": read_proc("/proc/cpuinfo", "model name") or platform.processor(),
             "cpu_count": os.cpu_count(), "load_average_start": load_average(),
             "memory_available_bytes": available_memory_bytes(),
-            "versions": {name: version(name) for name in distributions},
+            "versions": {name: next((d.version for d in importlib.metadata.distributions(
+                name=name)), None) for name in distributions},
             "git_commit": commit and commit + "+dirty" * bool(dirty),
             "backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()]}
 
@@ -352,10 +345,11 @@ LIMITS = {"--budget-seconds": "stop repeating once the timed calls add up to thi
           "--max-call-seconds": "skip a call estimated to take longer",
           "--memory-fraction": "skip a call needing more of the available memory"}
 
-def parser(doc: str, cases=None, sizes="pairs per timed call", timing: bool = True,
-           limits=()) -> argparse.ArgumentParser:
-    """The options the scripts share (--repeats and --pool with `timing`, `limits` of LIMITS);
-    `parse` fills in their defaults."""
+def parse(argv, doc: str, defaults: dict, cases=None, sizes="pairs per timed call",
+          timing: bool = True, limits=(), options: dict | None = None) -> argparse.Namespace:
+    """Parse the options the scripts share (--repeats and --pool with `timing`, `limits` of
+    LIMITS), then `options` (flag: add_argument's keywords, or the help of an integer option);
+    fill each left unset from `defaults`, name: (full, quick) (--pool: 256, --cases: all)."""
     parser = argparse.ArgumentParser(description=doc.split("\n\n")[0], epilog="Usage:" + (
         doc.split("Usage")[-1].split(":", 1)[-1]), formatter_class=argparse.RawTextHelpFormatter)
     parser.add_argument("--quick", action="store_true",
@@ -373,12 +367,10 @@ def parser(doc: str, cases=None, sizes="pairs per timed call", timing: bool = Tr
     parser.add_argument("--output", type=pathlib.Path, metavar="PREFIX", help="write PREFIX.json"
                         " and .md (default: benchmarks/results/<script>-cpu-2core, not --quick)")
     parser.add_argument("--no-save", action="store_true", help="print only")
-    return parser
-
-def parse(parser, argv, defaults: dict) -> argparse.Namespace:
-    """Parse, then fill each option left unset from `defaults`: name -> (full, quick)."""
+    for flag, spec in (options or {}).items():
+        parser.add_argument(flag, **{"type": int, "help": spec} if isinstance(spec, str) else spec)
     args = parser.parse_args(argv)
-    for name, (full, quick) in {"pool": (256, 256), **defaults}.items():
+    for name, (full, quick) in {"pool": (256, 256), "cases": (cases, cases), **defaults}.items():
         if hasattr(args, name) and getattr(args, name) is None:
             setattr(args, name, quick if args.quick else full)
     counts = [*(getattr(args, "sizes", None) or []), getattr(args, "repeats", 1),
@@ -388,23 +380,21 @@ def parse(parser, argv, defaults: dict) -> argparse.Namespace:
     return args
 
 def save(args, name: str, title: str, info: dict, payload: dict, table: str):
-    """Print the table; unless --no-save (or --quick without --output) write PREFIX.json
-    (machine, config, `payload`) and PREFIX.md."""
+    """Print the table; unless --no-save, write PREFIX.json (machine, config, `payload`), .md."""
     info["load_average_end"], info["run_seconds"] = load_average(), time.perf_counter() - STARTED
     versions = ", ".join(f"{k} {v}" for k, v in info["versions"].items() if v)
-    text = (f"{title}, {info['date_utc']}, git {info['git_commit']}\n\nMachine: "
-            f"{info['cpu_model']}, {info['cpu_count']} CPUs, {info['platform']}, "
-            f"{info['backend']}; load average {info['load_average_start']} at start, "
-            f"{info['load_average_end']} at end; {info['run_seconds']:.0f} s. Versions: "
-            f"{versions}.\n\n{table}")
+    text = ("{title}, {date_utc}, git {git_commit}\n\nMachine: {cpu_model}, {cpu_count} CPUs, "
+            "{platform}, {backend}; load average {load_average_start} at start, {load_average_end}"
+            " at end; {run_seconds:.0f} s. Versions: {installed}.\n\n").format(
+                title=title, installed=versions, **info) + table
     print("\n" + text)
     prefix = args.output or (None if args.quick else HERE / "results" / f"{name}-cpu-2core")
     if prefix is None or args.no_save:
         return
     prefix.parent.mkdir(parents=True, exist_ok=True)
-    record = {"machine": info, "config": vars(args), **payload}
     prefix.with_name(prefix.name + ".json").write_text(json.dumps(
-        record, indent=1, default=lambda x: getattr(x, "item", x.__str__)()))
+        {"machine": info, "config": vars(args), **payload}, indent=1,
+        default=lambda x: getattr(x, "item", x.__str__)()))
     prefix.with_name(prefix.name + ".md").write_text(text)
     print(f"wrote {prefix}.json, .md", file=sys.stderr)
 
@@ -416,7 +406,6 @@ def too_big(args, memory_bytes=None, seconds: float = 0.0) -> str | None:
         return f"needs {memory_bytes / 2**30:.1f} GiB"
     if seconds > args.max_call_seconds:
         return f"~{seconds:.0f} s per call > --max-call-seconds {args.max_call_seconds:g}"
-    return None
 
 def stats(name: str, errors, unit: str = "") -> dict:
     """name_max and name_median of `errors` (nothing for none)."""

@@ -12,7 +12,6 @@ from __future__ import annotations
 import functools
 import pathlib
 import sys
-import time
 
 import jax
 import numpy as np
@@ -36,16 +35,14 @@ KERNELS = {"penetration": lambda a, pa, b, pb: jaxsat.penetration(a, pa, b, pb).
 
 def measure(data: core.DataSet, pairs: int, rounds: int) -> dict:
     batch = data.inputs(slice(0, pairs))
-    spec = core.abstract(batch, pairs)
-    compiled = {name: core.compile_aot(jax.vmap(k), *spec) for name, k in KERNELS.items()}
+    compiled = {name: core.compile_aot(jax.vmap(k), *batch) for name, k in KERNELS.items()}
     timings = core.time_calls({name: lambda c=c: c.call(*batch) for name, c in compiled.items()},
                               rounds, burst=10, burst_s=1.0)
     row = {"case": data.name, "pairs": pairs}
     for name, c in compiled.items():
         best = timings[name].best
-        row[name] = {"pairs_per_s": pairs / best, "compile_s": c.seconds,
-                     "bytes": c.memory_bytes, "temp_bytes": c.temp_bytes,
-                     "ratio": best / timings["penetration"].best}
+        row[name] = {"pairs_per_s": pairs / best, "compile_s": c.seconds, "bytes": c.memory_bytes,
+                     "temp_bytes": c.temp_bytes, "ratio": best / timings["penetration"].best}
         if name != "penetration":
             _, grads = timings[name].output
             row[name]["max_translation_gradient"] = float(max(np.linalg.norm(np.asarray(
@@ -60,9 +57,7 @@ def eager_latency(data: core.DataSet) -> dict:
                "closest_points": jaxsat.closest_points, "contacts": jaxsat.contacts}
     out = {}
     for name, query in queries.items():
-        start = time.perf_counter()
-        jax.block_until_ready(query(a, pa, b, pb))
-        first = time.perf_counter() - start
+        first = core.timed(lambda q=query: jax.block_until_ready(q(a, pa, b, pb)))[1]
         warm = core.time_calls({"": lambda q=query: q(a, pa, b, pb)}, 1, burst=20, burst_s=1.0)
         out[name] = {"first_s": first, "warm_ms": 1e3 * warm[""].best}
     return out
@@ -91,10 +86,9 @@ def markdown(rows: list[dict], eager: dict) -> str:
                  for case, queries in eager.items() for name, c in queries.items()]))
 
 def main(argv=None) -> int:
-    args = core.parse(core.parser(__doc__, CASES), argv, {
-        "cases": (CASES, CASES), "sizes": ([10_000, 100_000], [1_000]), "repeats": (5, 2)})
-    info = core.machine_info()
-    rows, eager = [], {}
+    args = core.parse(argv, __doc__, {"sizes": ([10_000, 100_000], [1_000]), "repeats": (5, 2)},
+                      CASES)
+    info, rows, eager = core.machine_info(), [], {}
     for case in args.cases:
         data = core.make_data(case, max(args.sizes), args.pool, args.seed)
         for pairs in args.sizes:

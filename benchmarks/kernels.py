@@ -17,7 +17,6 @@ import os
 import pathlib
 import resource
 import sys
-import time
 
 import jax
 import jax.numpy as jnp
@@ -50,17 +49,15 @@ def ceilings(repeats: int) -> dict:
             "copy_gbytes_per_s": copy[0], "cache_copy_gbytes_per_s": copy[1]}
 
 def large_batch(args) -> dict:
-    data = core.make_data("3d-boxes", 1000, pool=1000, seed=args.seed)
-    shapes, poses = data.inputs()[:2]
+    shapes, poses = core.make_data("3d-boxes", 1000, pool=1000, seed=args.seed).inputs()[:2]
     poses = jaxsat.Pose(poses.translation * 0.6, poses.rotation)  # about half overlap
     pairs = jnp.asarray(np.random.default_rng(args.seed).integers(
         0, 1000, (args.query_pairs, 2), dtype=np.int32))
     options = {"chunk_size": args.chunk or None, "devices": args.devices or None}
     run = lambda: jaxsat.query_pairs(jaxsat.penetration, shapes, poses, pairs, **options)  # noqa: E731
     peak_rss_mib = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # noqa: E731
-    before, start = peak_rss_mib(), time.perf_counter()
-    depth = jax.block_until_ready(run()).depth
-    first = time.perf_counter() - start
+    before = peak_rss_mib()
+    depth, first = core.timed(lambda: jax.block_until_ready(run()).depth)
     timing = core.time_calls({"": run}, args.repeats, args.budget_seconds)[""]
     return {"pairs": args.query_pairs, **options, "compile_and_first_s": first,
             "best_s": timing.best, "pairs_per_s": args.query_pairs / timing.best,
@@ -79,14 +76,12 @@ def run_case(case: str, args) -> list[dict]:
         compiled = {name: core.compile_aot(f, *spec) for name, f in functions.items()}
         vmap, calls = compiled["vmap"], {}
         row.update(flops_per_pair=vmap.flops / n, bytes_per_pair=vmap.bytes_accessed / n)
-        for name, kernel in compiled.items():
-            row.update({f"{name}_compile_s": kernel.seconds,
-                        f"{name}_memory_bytes": kernel.memory_bytes})
-            skipped = core.too_big(args, kernel.memory_bytes, per_pair.get(name, 0) * n)
-            if skipped:
+        for name, c in compiled.items():
+            row[f"{name}_compile_s"], row[f"{name}_memory_bytes"] = c.seconds, c.memory_bytes
+            if skipped := core.too_big(args, c.memory_bytes, per_pair.get(name, 0) * n):
                 row[f"{name}_skipped"] = skipped
             else:
-                calls[name] = kernel.call
+                calls[name] = c.call
         if calls:
             inputs = data.inputs(slice(0, n))
             timings = core.time_calls({k: lambda c=c, x=inputs: c(*x) for k, c in calls.items()},
@@ -95,9 +90,8 @@ def run_case(case: str, args) -> list[dict]:
                 per_pair[name] = timing.best / n
                 row.update({f"{name}_pairs_per_s": n / timing.best, f"{name}_best_s": timing.best,
                             f"{name}_median_s": timing.median, f"{name}_calls": len(timing.times)})
-            out = timing.output
-            row["colliding"] = float(np.mean(np.asarray(
-                out.depth > 0 if args.query == "penetration" else out)))
+            out = timing.output  # of the last kernel timed
+            row["colliding"] = float(np.mean(out.depth > 0 if args.query == "penetration" else out))
             del inputs, timings
         rows.append(row)
         print(f"{case} {n:.0e}: " + ", ".join(
@@ -152,25 +146,21 @@ def markdown(cases: dict, limits: dict, large: dict | None, args) -> str:
     return "\n".join(text)
 
 def main(argv=None) -> int:
-    parser = core.parser(__doc__, CASES, limits=core.LIMITS)
-    parser.add_argument("--query", choices=list(core.QUERIES), default="penetration")
-    parser.add_argument("--query-pairs", type=int, help="pairs of the large batch (0: none)")
-    parser.add_argument("--chunk", type=int, default=2**14, help="its chunk (0: one vmap)")
-    parser.add_argument("--devices", type=int, default=0, help="its devices (0: default)")
-    args = core.parse(parser, argv, {
-        "cases": (CASES, CASES), "sizes": ([1_000, 10_000, 100_000, 1_000_000], [1_000, 10_000]),
-        "repeats": (7, 3), "query_pairs": (10_000_000, 100_000), "budget_seconds": (30, 30),
-        "max_call_seconds": (60, 60), "memory_fraction": (0.5, 0.5)})
-    info = core.machine_info()
-    large = large_batch(args) if args.query_pairs else None
+    args = core.parse(argv, __doc__, {
+        "sizes": ([1_000, 10_000, 100_000, 1_000_000], [1_000, 10_000]), "repeats": (7, 3),
+        "query_pairs": (10_000_000, 100_000), "budget_seconds": (30, 30),
+        "max_call_seconds": (60, 60), "memory_fraction": (0.5, 0.5)}, CASES, limits=core.LIMITS,
+        options={"--query": {"choices": list(core.QUERIES), "default": "penetration"},
+                 "--query-pairs": "pairs of the large batch (0: none)",
+                 "--chunk": {"type": int, "default": 2**14, "help": "its chunk (0: one vmap)"},
+                 "--devices": {"type": int, "default": 0, "help": "its devices (0: default)"}})
+    info, large = core.machine_info(), large_batch(args) if args.query_pairs else None
     limits = ceilings(args.repeats)
-    cases = {case: run_case(case, args) for case in args.cases}
-    cases = {case: (rows, roofline(rows, limits)) for case, rows in cases.items()}
+    cases = {case: (rows := run_case(case, args), roofline(rows, limits)) for case in args.cases}
     payload = {"ceilings": limits, "large_batch": large,
                "cases": {case: {"rows": rows, "roofline": s} for case, (rows, s) in cases.items()}}
-    name = "kernels" + ("-intersects" if args.query == "intersects" else "")
-    core.save(args, name, f"jaxsat kernels ({args.query})", info, payload,
-              markdown(cases, limits, large, args))
+    core.save(args, "kernels" + "-intersects" * (args.query == "intersects"),
+              f"jaxsat kernels ({args.query})", info, payload, markdown(cases, limits, large, args))
     return 0
 
 if __name__ == "__main__":

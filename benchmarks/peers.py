@@ -17,7 +17,6 @@ import importlib.util
 import math
 import pathlib
 import sys
-import time
 from collections.abc import Callable
 from types import SimpleNamespace
 
@@ -32,9 +31,8 @@ import core  # noqa: E402
 CASES = ["2d-small", "2d-polygons", "3d-boxes", "3d-hulls", "3d-spheres", "3d-capsules",
          "3d-sphere-box"]
 DEFAULTS = {"sizes": ([1_000, 10_000, 100_000], [1_000, 10_000]), "error_pairs": (2000, 500),
-            "grad_pairs": (200, 20), "loop_pairs": (20_000, 1000), "repeats": (5, 2),
-            "max_call_seconds": (60.0, 10.0), "cases": (CASES, CASES), "budget_seconds": (20, 20),
-            "memory_fraction": (0.3, 0.3)}
+            "grad_pairs": (200, 20), "loop_pairs": (20_000, 1000), "budget_seconds": (20, 20),
+            "repeats": (5, 2), "max_call_seconds": (60.0, 10.0), "memory_fraction": (0.3, 0.3)}
 DISTRIBUTIONS = ("jax", "jaxlib", "jaxsat", "numpy", "scipy", "mujoco", "mujoco-mjx", "jax2d",
                  "pymunk", "collision", "coal")
 DEPTH, CONTACTS, DISTANCE = "depth+normal", "contacts", "signed distance+normal"
@@ -54,8 +52,7 @@ class Prepared:
 @dataclasses.dataclass(frozen=True)
 class Method:
     """prepare(data, n) -> Prepared; gradient(data, indices) -> d depth / d translation of b;
-    module: what it imports (pip install `install`, default `module`); loop: a Python loop
-    over pairs."""
+    module: what it imports (pip install `install` or `module`); loop: a Python loop."""
     name: str
     cases: tuple
     level: str
@@ -65,24 +62,19 @@ class Method:
     gradient: Callable | None = None
     loop: bool = False
     install: str | None = None
-
+    pip = property(lambda self: f"{self.module} (pip install {self.install or self.module})")
     def missing(self) -> bool:
         """Whether `module` cannot be imported (None in sys.modules: not, as for `import`)."""
-        if self.module is None or self.module in sys.modules:
-            return self.module is not None and sys.modules[self.module] is None
+        if self.module in sys.modules:
+            return sys.modules[self.module] is None
         try:
-            return importlib.util.find_spec(self.module) is None
+            return self.module is not None and importlib.util.find_spec(self.module) is None
         except (ImportError, ValueError):
             return True
 
-def _timed(build):
-    start = time.perf_counter()
-    return build(), time.perf_counter() - start
-
-def _unit(vectors):
-    vectors = np.asarray(vectors, np.float64)
-    norm = np.linalg.norm(vectors, axis=-1, keepdims=True)
-    return vectors / np.where(norm > 0, norm, 1)
+def _unit(vector):
+    norm = np.linalg.norm(vector)
+    return np.asarray(vector, np.float64) / (norm if norm > 0 else 1)
 
 def _memo(data: core.DataSet, key: str, build):
     memo = data.__dict__.setdefault("memo", {})
@@ -97,7 +89,7 @@ def _jax(function, arguments, decode) -> Prepared:
 def _loop(build, query, decode_one) -> Prepared:
     """A Python loop: build() -> one object per pair (the setup), query(object) -> raw result
     (timed), decode_one(raw) -> (depth, normal, found, overlap)."""
-    objects, seconds = _timed(build)
+    objects, seconds = core.timed(build)
     return Prepared(lambda: [query(o) for o in objects], lambda out: tuple(
         map(np.array, zip(*map(decode_one, out), strict=True))), seconds)
 
@@ -122,15 +114,13 @@ def _jaxsat_gradient(depth):
 
 def _contacts(out):
     valid = np.asarray(out.valid)
-    depths = np.where(valid, np.asarray(out.depths, np.float64), -np.inf)
-    found = valid.any(axis=1)
+    found, depths = valid.any(axis=1), np.where(valid, np.asarray(out.depths, np.float64), -np.inf)
     return np.where(found, depths.max(axis=1), 0.0), np.asarray(out.normal, np.float64), found
 
 def numpy_sat_2d(local_a, rotation_a, translation_a, local_b, rotation_b, translation_b):
-    """Exact vectorised SAT for 2D convex polygons (any float dtype): local_* (n, V, 2)
-    counter-clockwise, padded by repeating vertex 0 (zero axes, masked). The edge normals of
-    both are the Minkowski difference's facet normals: the smallest support gap over them is
-    the exact depth. Returns (depth (n,), normal (n, 2) from a towards b)."""
+    """Exact vectorised 2D SAT in any float dtype: local_* (n, V, 2) counter-clockwise, padded
+    by repeating vertex 0 (zero axes, masked). The edge normals are the Minkowski difference's
+    facet normals; the least support gap over them is the depth. Returns (depth, normal a to b)."""
     world_a, world_b = (np.einsum("nij,nvj->nvi", r, v) + t[:, None] for v, r, t in (
         (local_a, rotation_a, translation_a), (local_b, rotation_b, translation_b)))
     edges = [np.roll(w, -1, axis=1) - w for w in (world_a, world_b)]
@@ -140,9 +130,8 @@ def numpy_sat_2d(local_a, rotation_a, translation_a, local_b, rotation_b, transl
     axes = axes / np.where(length > 0, length, 1)[..., None]
     gaps = np.where(length > 0, np.einsum("nkd,nvd->nkv", axes, world_a).max(-1)
                     - np.einsum("nkd,nvd->nkv", axes, world_b).min(-1), np.inf)
-    best = np.argmin(gaps, axis=1)[:, None]
-    return np.take_along_axis(gaps, best, 1)[:, 0], np.take_along_axis(axes, best[..., None],
-                                                                       1)[:, 0]
+    best, rows = np.argmin(gaps, axis=1), np.arange(len(gaps))
+    return gaps[rows, best], axes[rows, best]
 
 def numpy_sat(dtype):
     def prepare(data, n):
@@ -152,40 +141,34 @@ def numpy_sat(dtype):
                               for p in data.points]).astype(dtype)
             return [x[s, :n].astype(dtype) for s in (0, 1) for x in (
                 table[data.pick], data.rotation, data.translation)]
-        arguments, seconds = _timed(build)
+        arguments, seconds = core.timed(build)
         return Prepared(lambda: numpy_sat_2d(*arguments), lambda out: (
             out[0].astype(np.float64), out[1].astype(np.float64), np.ones(n, bool)), seconds)
     return prepare
 
-def _jax2d_bodies(data, indices):
-    """(a, b) jax2d RigidBody batches: clockwise vertices padded with zeros to 4."""
-    from jax2d.sim_state import RigidBody
+def _jax2d_inputs(data, indices):
+    """(a, b, manifolds): jax2d bodies (clockwise vertices, zero-padded to 4), no contacts."""
+    from jax2d.sim_state import CollisionManifold, RigidBody
     table = np.zeros((len(data.points), 4, 2), np.float32)
     for i, points in enumerate(data.points):
         table[i, :len(points)] = points[::-1]  # jax2d wants clockwise
     counts = np.array([len(p) for p in data.points], np.int32)
-    n, f32 = len(indices), np.float32
-    zeros, ones = np.zeros(n, f32), np.ones(n, f32)
-    return [RigidBody(
-        position=data.translation[s, indices].astype(f32),
-        rotation=data.angle[s, indices].astype(f32), velocity=np.zeros((n, 2), f32),
-        angular_velocity=zeros, inverse_mass=ones, inverse_inertia=ones, friction=ones,
-        restitution=zeros, collision_mode=np.ones(n, np.int32), active=np.ones(n, bool),
+    n, z = len(indices), lambda *shape: np.zeros(shape, np.float32)
+    ones = np.ones(n, np.float32)
+    return [*(RigidBody(
+        position=data.translation[s, indices].astype(np.float32),
+        rotation=data.angle[s, indices].astype(np.float32), velocity=z(n, 2),
+        angular_velocity=z(n), inverse_mass=ones, inverse_inertia=ones, friction=ones,
+        restitution=z(n), collision_mode=np.ones(n, np.int32), active=np.ones(n, bool),
         n_vertices=counts[data.pick[s, indices]], vertices=table[data.pick[s, indices]],
-        radius=zeros) for s in (0, 1)]
-
-def _jax2d_manifolds():
-    from jax2d.sim_state import CollisionManifold
-    z = lambda *shape: np.zeros(shape, np.float32)  # noqa: E731
-    return CollisionManifold(normal=z(2, 2), penetration=z(2), collision_point=z(2, 2),
-                             active=np.zeros(2, bool), acc_impulse_normal=z(2),
-                             acc_impulse_tangent=z(2), restitution_velocity_target=z(2))
+        radius=z(n)) for s in (0, 1)), CollisionManifold(
+        normal=z(2, 2), penetration=z(2), collision_point=z(2, 2), active=np.zeros(2, bool),
+        acc_impulse_normal=z(2), acc_impulse_tangent=z(2), restitution_velocity_target=z(2))]
 
 def jax2d_prepare(data, n):
     from jax2d.collision import generate_manifolds_polygon_polygon as collide
     # As jax2d's engine does: vmap the pair function over polygon pairs.
-    return _jax(jax.vmap(collide, in_axes=(0, 0, None)),
-                (*_jax2d_bodies(data, np.arange(n)), _jax2d_manifolds()),
+    return _jax(jax.vmap(collide, in_axes=(0, 0, None)), _jax2d_inputs(data, np.arange(n)),
                 lambda out: (np.asarray(out.penetration[:, 0], np.float64),
                              np.asarray(out.normal[:, 0], np.float64),
                              np.asarray(out.active[:, 0])))
@@ -194,9 +177,15 @@ def jax2d_gradient(data, indices):
     from jax2d.collision import generate_manifolds_polygon_polygon as collide
     def depth(position_b, a, b, manifolds):
         return collide(a, b.replace(position=position_b), manifolds).penetration[0]
-    a, b = _jax2d_bodies(data, indices)
+    a, b, manifolds = _jax2d_inputs(data, indices)
     grad = jax.jit(jax.vmap(jax.grad(depth), in_axes=(0, 0, 0, None)))
-    return np.asarray(grad(b.position, a, b, _jax2d_manifolds()), np.float64)
+    return np.asarray(grad(b.position, a, b, manifolds), np.float64)
+
+def _pymunk_poly(data, s, i, body, offset=0.0):
+    """The polygon of side s of pair i on `body`, at its pose moved by `offset`."""
+    import pymunk
+    body.position, body.angle = tuple(data.translation[s, i] + offset), float(data.angle[s, i])
+    return pymunk.Poly(body, [tuple(p) for p in data.points[data.pick[s, i]]])
 
 def _pymunk_contacts(points, flip=1.0):
     if points is None or not points.points:
@@ -207,9 +196,7 @@ def _pymunk_contacts(points, flip=1.0):
 def pymunk_prepare(data, n):
     import pymunk
     def poly(s, i):
-        body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
-        body.position, body.angle = tuple(data.translation[s, i]), float(data.angle[s, i])
-        shape = pymunk.Poly(body, [tuple(p) for p in data.points[data.pick[s, i]]])
+        shape = _pymunk_poly(data, s, i, pymunk.Body(body_type=pymunk.Body.KINEMATIC))
         shape.cache_bb()  # shapes_collide reads the cached world vertices
         return shape
     def collide(pair):
@@ -234,20 +221,17 @@ def pymunk_space_prepare(data, n):
         for i in range(n):
             for s, body in enumerate((pymunk.Body(body_type=pymunk.Body.STATIC),
                                       pymunk.Body(1.0, 1.0))):
-                body.position = tuple(data.translation[s, i] + cells[i])
-                body.angle = float(data.angle[s, i])
-                shape = pymunk.Poly(body, [tuple(p) for p in data.points[data.pick[s, i]]])
+                shape = _pymunk_poly(data, s, i, body, cells[i])
                 space.add(body, shape)
                 shapes_b.update({shape: i} if s else {})
         return space, shapes_b
-    (space, shapes_b), seconds = _timed(build)
+    (space, shapes_b), seconds = core.timed(build)
     def decode(_):
         depth, normal, found = np.zeros(n), np.zeros((n, 2)), np.zeros(n, bool)
         for shape, i in shapes_b.items():
             def read(arbiter, i=i, shape=shape):
                 flip = -1.0 if arbiter.shapes[0] is shape else 1.0  # normal: a to b
-                depth[i], normal[i], found[i], _ = _pymunk_contacts(arbiter.contact_point_set,
-                                                                    flip)
+                depth[i], normal[i], found[i], _ = _pymunk_contacts(arbiter.contact_point_set, flip)
             shape.body.each_arbiter(read)
         return depth, normal, found
     return Prepared(lambda: space.step(1e-9), decode, seconds)
@@ -303,9 +287,8 @@ MUJOCO_CHUNK = 10_000
 
 def _mujoco_models(data, n):
     """[(start, model, data)]: each model holds explicit geom pairs (i, k + i) for k pairs, all
-    a geoms in one mocap body and all b geoms in another (one body per geom would make
-    mj_collision allocate a bodies x bodies matrix), contype collisions off, world poses
-    written to geom_xpos / geom_xmat."""
+    a geoms in one mocap body, all b geoms in another (one body per geom would make mj_collision
+    allocate a bodies x bodies matrix), contype collisions off, world poses in geom_xpos/xmat."""
     import mujoco
     pool, models = _mujoco_pool(data), []
     for start in range(0, n, MUJOCO_CHUNK):
@@ -336,7 +319,7 @@ def _mujoco_models(data, n):
 
 def mujoco_collision_prepare(data, n):
     import mujoco
-    models, seconds = _timed(lambda: _mujoco_models(data, n))
+    models, seconds = core.timed(lambda: _mujoco_models(data, n))
     def run():
         for _, model, state in models:
             mujoco.mj_collision(model, state)
@@ -360,8 +343,7 @@ def mujoco_distance_prepare(data, n):
     fromto = np.zeros(6)
     def distance(pair):
         return mujoco.mj_geomDistance(*pair, 10.0, fromto), fromto.copy()
-    def decode_one(out):
-        # fromto: from a's point to b's apart, from b's into a's overlapping
+    def decode_one(out):  # fromto: from a's point to b's apart, from b's into a's overlapping
         distance, fromto = out
         return (-distance, _unit(fromto[3:] - fromto[:3]) * (-1 if distance < 0 else 1), True,
                 distance < 0)
@@ -390,14 +372,13 @@ def _mjx_meshes(data, pool):
 
 def _mjx_arguments(data, indices):
     """((pos, mat, size) of a, the same of b[, mesh fields of a, of b]), float32."""
-    hulls = "hull" in data.kinds
     pool, geoms, meshes = _mujoco_pool(data), [], []
     for s in (0, 1):
         position, rotation = _geom_frames(data, pool, s, indices)
         pick = data.pick[s, indices]
         geoms.append(tuple(np.asarray(x, np.float32) for x in (
             position, rotation, [data.geoms[k].size for k in pick])))
-        if hulls:
+        if "hull" in data.kinds:
             meshes.append(tuple(field[pick] for field in _mjx_meshes(data, pool)))
     return (*geoms, *meshes)
 
@@ -420,8 +401,7 @@ def _mjx_batched(kinds):
         collide = {"box": collision_convex._box_box, "hull": collision_convex._convex_convex,
                    "sphere": collision_convex._sphere_convex}[kinds[0]]
         dist, pos, normal = collide(info_a, info_b)
-        return dist.reshape(-1), pos.reshape(-1, 3), jax.vmap(math.make_frame)(normal.reshape(
-            -1, 3))
+        return dist.ravel(), pos.reshape(-1, 3), jax.vmap(math.make_frame)(normal.reshape(-1, 3))
     def batched(geom_a, geom_b, mesh_a=(), mesh_b=()):
         infos, axes = [], []
         for kind, geom, fields in zip(kinds, (geom_a, geom_b), (mesh_a, mesh_b), strict=True):
@@ -432,14 +412,12 @@ def _mjx_batched(kinds):
         return jax.vmap(pair, in_axes=axes)(*infos)
     return batched
 
-def _decode_mjx(out):
-    dist, _, frame = (np.asarray(x, np.float64) for x in out)
-    best = np.argmin(dist, axis=1)
-    dist, normal = dist[np.arange(len(best)), best], frame[np.arange(len(best)), best, 0]
-    return -dist, normal, dist < 0
-
 def mjx_prepare(data, n):
-    return _jax(_mjx_batched(data.kinds), _mjx_arguments(data, np.arange(n)), _decode_mjx)
+    def decode(out):  # each pair's deepest contact
+        dist, _, frame = (np.asarray(x, np.float64) for x in out)
+        best, rows = np.argmin(dist, axis=1), np.arange(n)
+        return -dist[rows, best], frame[rows, best, 0], dist[rows, best] < 0
+    return _jax(_mjx_batched(data.kinds), _mjx_arguments(data, np.arange(n)), decode)
 
 def mjx_gradient(data, indices):
     batched = _mjx_batched(data.kinds)
@@ -453,15 +431,14 @@ def mjx_gradient(data, indices):
 
 def coal_prepare(data, n):
     import coal
-    def geometry(geom):
-        if geom.kind != "hull":
-            return {"box": lambda: coal.Box(*(2 * geom.size)), "sphere": lambda: coal.Sphere(
-                geom.size[0]), "capsule": lambda: coal.Capsule(geom.size[0], 2 * geom.size[1])
-                    }[geom.kind]()  # Capsule(radius, length of the segment)
-        vertices = coal.StdVec_Vec3s()
-        for point in geom.points:
-            vertices.append(np.asarray(point, np.float64))
-        return coal.Convex.convexHull(vertices, False, "")
+    def geometry(geom):  # Capsule(radius, length of the segment)
+        if geom.kind == "hull":
+            vertices = coal.StdVec_Vec3s()
+            vertices.extend(list(geom.points))
+            return coal.Convex.convexHull(vertices, False, "")
+        return {"box": lambda: coal.Box(*(2 * geom.size)),
+                "sphere": lambda: coal.Sphere(geom.size[0]),
+                "capsule": lambda: coal.Capsule(geom.size[0], 2 * geom.size[1])}[geom.kind]()
     def build():
         shapes = [geometry(geom) for geom in data.geoms]
         return [tuple(x for s in (0, 1) for x in (shapes[data.pick[s, i]], coal.Transform3s(
@@ -522,19 +499,6 @@ def error_stats(method, ref: core.Reference, depth, normal, found, says=None) ->
         out.update(normals_over_1deg=float(np.mean(angles > 1.0)), normals_compared=len(angles))
     return out
 
-def gradient_pairs(data, ref: core.Reference, count: int):
-    """(indices, d depth / d translation of b) of the first `count` overlapping pairs with a
-    unique normal and no kink within the finite-difference steps."""
-    indices, gradients, columns = [], [], data.params.shape[-1] + np.arange(data.dim)
-    for i in np.flatnonzero(ref.overlapping & ref.normal_is_unique):
-        if len(indices) == count:
-            break
-        gradient, smooth = core.oracle_gradient(data, int(i), columns, FD_AGREEMENT)
-        if smooth:
-            indices.append(int(i))
-            gradients.append(-gradient)
-    return np.array(indices, int), np.array(gradients).reshape(-1, data.dim)
-
 def measure(method, data, ref, grads, args) -> dict:
     """One row: pairs/s per size, setup time, errors and gradient errors."""
     sizes, count = {}, len(ref.depth)
@@ -542,19 +506,18 @@ def measure(method, data, ref, grads, args) -> dict:
            "precision": method.precision, "gradients": "jax.grad" if method.gradient else "no",
            "sizes": sizes}
     if method.missing():
-        row["skipped"] = (f"not installed: {method.module} "
-                          f"(pip install {method.install or method.module})")
+        row["skipped"] = f"not installed: {method.pip}"
         return row
     per_pair, decoded, timed = 0.0, None, {}
     for n in args.sizes:
         k = min(n, args.loop_pairs) if method.loop else n
-        if k in timed or core.too_big(args, seconds=per_pair * k):
-            sizes[n] = dict(timed.get(k) or {"skipped": core.too_big(args, seconds=per_pair * k)})
+        if k in timed or (why := core.too_big(args, seconds=per_pair * k)):
+            sizes[n] = dict(timed.get(k) or {"skipped": why})
             continue
         try:
             prepared = method.prepare(data, k)
-            if core.too_big(args, prepared.memory_bytes):
-                sizes[n] = {"skipped": core.too_big(args, prepared.memory_bytes)}
+            if why := core.too_big(args, prepared.memory_bytes):
+                sizes[n] = {"skipped": why}
                 break
             timing = core.time_calls({"": prepared.run}, args.repeats, args.budget_seconds,
                                      block=False)[""]
@@ -617,38 +580,35 @@ def markdown(rows: list[dict], args) -> str:
             "angle to the oracle's); gradients: d depth / d translation of b against central "
             f"finite differences of the oracle on up to {args.grad_pairs} overlapping pairs "
             "(error: norm of the difference). Setup: JAX compile, MuJoCo model build, or "
-            "object building.\n\n" + core.markdown_table(
-                ["case", "method", "level", "dtype", *[f"pairs/s {n:.0e}".replace("+0", "")
-                                                       for n in args.sizes],
-                 "setup s", "depth err max / median", "normal err max (deg)", "normals > 1 deg",
-                 "wrong overlap", "distance err max (apart)", "grad", "grad err max / median",
-                 "notes"], table))
+            "object building.\n\n" + core.markdown_table([
+                "case", "method", "level", "dtype", *(f"pairs/s {n:.0e}".replace("+0", "")
+                for n in args.sizes), "setup s", "depth err max / median", "normal err max (deg)",
+                "normals > 1 deg", "wrong overlap", "distance err max (apart)", "grad",
+                "grad err max / median", "notes"], table))
 
 def main(argv=None) -> int:
-    parser = core.parser(__doc__, CASES, limits=core.LIMITS)
-    parser.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(METHODS))
-    for name, help_ in (("--error-pairs", "pairs compared with the oracle"),
-                        ("--grad-pairs", "overlapping pairs for gradients"),
-                        ("--loop-pairs", "most pairs a Python loop is timed on")):
-        parser.add_argument(name, type=int, help=help_)
-    parser.add_argument("--list", action="store_true",
-                        help="list the methods and whether they are installed")
-    args = core.parse(parser, argv, DEFAULTS)
+    args = core.parse(argv, __doc__, DEFAULTS, CASES, limits=core.LIMITS, options={
+        "--methods": {"nargs": "+", "choices": list(METHODS), "default": list(METHODS)},
+        "--error-pairs": "pairs compared with the oracle",
+        "--grad-pairs": "overlapping pairs for gradients",
+        "--loop-pairs": "most pairs a Python loop is timed on", "--list": {
+            "action": "store_true", "help": "list the methods and whether they are installed"}})
     args.sizes = sorted(set(args.sizes))
     if args.list:
         width = max(len(" ".join(m.cases)) for m in METHODS.values())
         print(f"{'method':<17} {'level':<23} {'dtype':<8} {'cases':<{width}} status")
         for m in METHODS.values():
-            status = (f"missing {m.module} (pip install {m.install or m.module})" if m.missing()
-                      else "installed")
-            print(f"{m.name:<17} {m.level:<23} {m.precision:<8} "
-                  f"{' '.join(m.cases):<{width}} {status}")
+            print(f"{m.name:<17} {m.level:<23} {m.precision:<8} {' '.join(m.cases):<{width}} "
+                  + (f"missing {m.pip}" if m.missing() else "installed"))
         return 0
     info, rows = core.machine_info(DISTRIBUTIONS), []
     for case in args.cases:
         data = core.make_data(case, max(max(args.sizes), args.error_pairs), args.pool, args.seed)
         ref = core.reference(data, args.error_pairs)
-        grads = gradient_pairs(data, ref, args.grad_pairs)
+        index, gradient = core.oracle_gradients(
+            data, np.flatnonzero(ref.overlapping & ref.normal_is_unique),
+            data.params.shape[-1] + np.arange(data.dim), FD_AGREEMENT, args.grad_pairs)
+        grads = index, -gradient  # d depth / d translation of b (depth: minus the distance)
         for method in (METHODS[name] for name in args.methods if case in METHODS[name].cases):
             rows.append(row := measure(method, data, ref, grads, args))
             print(f"{case:<13} {method.name:<17} " + "  ".join(

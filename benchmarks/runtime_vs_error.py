@@ -43,14 +43,9 @@ def make_kernel(smooth: bool, gradient: bool, chunk: int):
             return one(*xs)
         value, grads = jax.value_and_grad(one, argnums=(0, 1))(*xs)
         return value, jnp.concatenate(grads)
-    def batch(tau, *inputs):
-        vmapped = jax.vmap(lambda *xs: pair(*xs, tau))
-        count = inputs[0].shape[0]
-        if count <= chunk:
-            return vmapped(*inputs)
-        split = lambda leaf: leaf.reshape(count // chunk, chunk, *leaf.shape[1:])  # noqa: E731
-        out = jax.lax.map(lambda xs: vmapped(*xs), jax.tree.map(split, inputs))
-        return jax.tree.map(lambda leaf: leaf.reshape(count, *leaf.shape[2:]), out)
+    def batch(tau, *inputs):  # batch_size 0: one vmap
+        return jax.lax.map(lambda xs: pair(*xs, tau), inputs,
+                           batch_size=chunk if inputs[0].shape[0] > chunk else 0)
     return batch
 
 def variants(smooth_dtypes) -> list[dict]:
@@ -59,37 +54,29 @@ def variants(smooth_dtypes) -> list[dict]:
     return rows + [{"variant": f"smooth-{d}", "dtype": d, "smooth": True, "tau_fraction": f}
                    for d in smooth_dtypes for f in TAU_FRACTIONS]
 
-def oracle_gradients(data, count: int, args):
-    """(indices, gradients): finite differences of the oracle on --grad-pairs of the first
-    `count` pairs, without kinks (two steps that disagree); and how many kinks there were."""
-    rng = np.random.default_rng(args.seed)
-    subsample = np.sort(rng.choice(count, min(args.grad_pairs, count), False))
-    columns = range(data.params.shape[-1] * 2)
-    fd = [core.oracle_gradient(data, int(i), columns, FD_AGREEMENT) for i in subsample]
-    kept = np.array([ok for _, ok in fd], bool)
-    return subsample[kept], np.array([g for g, ok in fd if ok]), int(np.sum(~kept))
-
 def run_case(case: str, args) -> tuple[dict, list[dict]]:
-    hulls = case == "3d-hulls"
-    pairs = args.hull_pairs if hulls else args.pairs
-    smooth_pairs = min(args.hull_smooth_pairs if hulls else args.smooth_pairs, pairs)
-    chunk = CHUNK[case]
+    pairs, smooth_pairs = ((args.hull_pairs, args.hull_smooth_pairs) if case == "3d-hulls"
+                           else (args.pairs, args.smooth_pairs))
+    smooth_pairs, chunk = min(smooth_pairs, pairs), CHUNK[case]
     if any(count > chunk and count % chunk for count in (pairs, smooth_pairs)):
         raise SystemExit(f"{case}: pairs must be multiples of the chunk {chunk}")
     data = core.make_data(case, pairs, args.pool, args.seed)
     reference = core.reference(data, pairs).signed
-    grad_index, grad_reference, kinks = oracle_gradients(data, smooth_pairs, args)
+    fd_pairs = np.sort(np.random.default_rng(args.seed).choice(
+        smooth_pairs, min(args.grad_pairs, smooth_pairs), False))
+    grad_index, grad_reference = core.oracle_gradients(
+        data, fd_pairs, range(data.params.shape[-1] * 2), FD_AGREEMENT)
     info = {"case": case, "pairs": pairs, "smooth_pairs": smooth_pairs,
-            "overlapping_fraction": float(np.mean(reference < 0)),
-            "grad_pairs": len(grad_index), "grad_skipped_kinks": kinks}
+            "overlapping_fraction": float(np.mean(reference < 0)), "grad_pairs": len(grad_index),
+            "grad_skipped_kinks": len(fd_pairs) - len(grad_index)}
     print(f"# {info}", file=sys.stderr, flush=True)
-    kernels, rows, bound = {}, [], None
+    kernels, rows = {}, []
+    bound = np.asarray(jaxsat.smoothing_error_bound(*data.shapes(dtype=np.float64)), np.float64)
     moves = np.r_[0:data.dim, data.params.shape[-1]:data.params.shape[-1] + data.dim]
     for variant in variants(args.smooth_dtypes):
         count, dtype = smooth_pairs if variant["smooth"] else pairs, variant["dtype"]
         tau = variant["tau_fraction"] * SIZE
-        arguments = (jnp.asarray(tau, dtype), *(jnp.asarray(data.params[s, :count], dtype)
-                                                for s in (0, 1)),
+        arguments = (jnp.asarray(tau, dtype), *jnp.asarray(data.params[:, :count], dtype),
                      *data.shapes(slice(0, count), np.dtype(dtype)))
         row, outputs = {"case": case, **variant, "tau": tau, "pairs": count}, {}
         for kind in ("value", "grad"):
@@ -106,17 +93,14 @@ def run_case(case: str, args) -> tuple[dict, list[dict]]:
             outputs[kind] = jax.tree.map(lambda x: np.asarray(x, np.float64), timing.output)
         values, (grad_values, gradients) = outputs["value"], outputs["grad"]
         value_errors = np.abs(values - reference[:count])
-        grad_errors = np.linalg.norm(gradients[grad_index] - grad_reference, axis=1)
+        grad_errors = gradients[grad_index] - grad_reference
         row.update(**core.stats("value_error", value_errors),
-                   **core.stats("grad_error", grad_errors),
+                   **core.stats("grad_error", np.linalg.norm(grad_errors, axis=1)),
                    grad_translation_error_max=float(np.max(np.linalg.norm(
-                       gradients[grad_index][:, moves] - grad_reference[:, moves], axis=1))),
+                       grad_errors[:, moves], axis=1))),
                    value_grad_kernel_value_error_max=float(np.max(np.abs(grad_values - values))),
                    nonfinite=int(np.sum(~np.isfinite(values)) + np.sum(~np.isfinite(gradients))))
         if variant["smooth"]:
-            if bound is None:
-                bound = np.asarray(jaxsat.smoothing_error_bound(
-                    *data.shapes(dtype=np.float64)), np.float64)
             allowed = bound[:count] * tau
             slack = 1e-12 if dtype == "float64" else 1e-5  # rounding of the inputs
             row.update(bound_max=float(allowed.max()),
@@ -140,19 +124,18 @@ def cells(row: dict) -> list:
             bound]
 
 def main(argv=None) -> int:
-    parser = core.parser(__doc__, CASES, sizes=None, limits=["--budget-seconds"])
-    for name, help_ in (("--pairs", "pairs of the 2D and box data sets (exact variants)"),
-                        ("--smooth-pairs", "their first pairs the smooth variants run on"),
-                        ("--hull-pairs", "pairs of 3D hulls (exact variants)"),
-                        ("--hull-smooth-pairs", "the first hull pairs for smooth variants"),
-                        ("--grad-pairs", "pairs per case for the finite-difference check")):
-        parser.add_argument(name, type=int, help=help_)
-    parser.add_argument("--smooth-dtypes", nargs="+", choices=["float64", "float32"])
-    args = core.parse(parser, argv, {
+    args = core.parse(argv, __doc__, {
         "pairs": (8192, 512), "smooth_pairs": (2048, 256), "hull_pairs": (2048, 128),
         "hull_smooth_pairs": (256, 128), "grad_pairs": (200, 10), "repeats": (3, 1),
         "pool": (256, 16), "cases": (CASES, ["2d-octagons"]),
-        "smooth_dtypes": (["float64", "float32"], ["float64"]), "budget_seconds": (6, 6)})
+        "smooth_dtypes": (["float64", "float32"], ["float64"]), "budget_seconds": (6, 6)},
+        CASES, sizes=None, limits=["--budget-seconds"], options={
+            "--pairs": "pairs of the 2D and box data sets (exact variants)",
+            "--smooth-pairs": "their first pairs the smooth variants run on",
+            "--hull-pairs": "pairs of 3D hulls (exact variants)",
+            "--hull-smooth-pairs": "the first hull pairs for smooth variants",
+            "--grad-pairs": "pairs per case for the finite-difference check",
+            "--smooth-dtypes": {"nargs": "+", "choices": ["float64", "float32"]}})
     info, results = core.machine_info(), [run_case(case, args) for case in args.cases]
     cases, rows = [c for c, _ in results], [row for _, case_rows in results for row in case_rows]
     core.save(args, "runtime_vs_error", "jaxsat signed_distance: run time against error", info,

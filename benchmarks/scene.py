@@ -39,16 +39,13 @@ UNPRUNED = functools.partial(jaxsat.penetration, prune=False)
 
 @dataclasses.dataclass
 class Variant:
-    """One way of answering the same pairs: `items` answered per call, `seconds` set where
-    the call is extrapolated instead of timed."""
+    """A way to answer the same pairs: `items` per call, `seconds` the median (or extrapolated)."""
     name: str
     work: str
     call: Callable | None
     compile_s: float
     items: int
-    timing: core.Timing | None = None
     seconds: float | None = None
-    median = property(lambda self: self.seconds or self.timing.median)
 
 def batched(name: str, work: str, query, args) -> Variant:
     compiled = core.compile_aot(lambda *x: jaxsat.query_batch(query, *x, chunk_size=CHUNK), *args)
@@ -59,7 +56,7 @@ def timed(variants: list[Variant], rounds: int, **options) -> list:
     options = options or {"budget_s": BUDGET_S, "min_rounds": MIN_ROUNDS}
     timings = core.time_calls({v.name: v.call for v in variants if v.call}, rounds, **options)
     for v in variants:
-        v.timing = timings.get(v.name)
+        v.seconds = timings[v.name].median if v.call else v.seconds
     return [outputs(t.output) for t in timings.values()]
 
 def candidates(a, prune: bool = True) -> str:
@@ -125,8 +122,8 @@ def rows_of(skip, case, variants, references, checks, unit="pairs/s") -> dict:
     """Rows: each variant's speed-up over the variants in its `references` and its check."""
     return {"skip": skip, "case": case, "unit": unit, "load_average": core.load_average(),
             "rows": [{"variant": v.name, "work": v.work, "compile_s": v.compile_s,
-                      "median_s": v.median, "items_per_s": v.items / v.median,
-                      "speedup": {variants[r].name: variants[r].median / v.median for r in refs},
+                      "median_s": v.seconds, "items_per_s": v.items / v.seconds,
+                      "speedup": {variants[r].name: variants[r].seconds / v.seconds for r in refs},
                       "check": check}
                      for v, refs, check in zip(variants, references, checks, strict=True)]}
 
@@ -219,53 +216,41 @@ def aabb_single_calls(kind: str, count: int, seed: int, options, spread) -> dict
         answers.append({"hit": np.array([bool(compiled.call(*p)) for p in pairs])})
     timed(variants, options.repeats * count, block=False)
     where = "far apart (AABBs disjoint)" if spread[0] > 2 else "near (about half collide)"
-    return rows_of("AABB check", f"{kind}, {where}, single calls", variants,
-                   [[], [0], [1, 0], []], [None] + [compare(answers[0], h, args)
-                                                   for h in answers[1:3]]
-                   + ["- (dispatch and read-back cost of any call)"], unit="us/call")
-
-def make_scene(kind: str, count: int, side: float, seed: int):
-    """`count` shapes of a 64-shape pool at uniform random positions and rotations."""
-    data = core.make_data(kind, count, pool=64, seed=seed)
-    shapes, poses = data.inputs()[:2]
-    return shapes, jaxsat.Pose(jnp.asarray((data.translation[0] + 1) / 2 * side, F32),
-                               poses.rotation)
+    return rows_of("AABB check", f"{kind}, {where}, single calls", variants, [[], [0], [1, 0], []],
+                   [None, *(compare(answers[0], h, args) for h in answers[1:3]),
+                    "- (dispatch and read-back cost of any call)"], unit="us/call")
 
 def capacity_for(pairs: int) -> int:
     """A power of two with room for twice the expected broad-phase pairs."""
     return 1 << max(int(2 * pairs + 63).bit_length(), 8)
 
-def scene_query(shapes, poses, capacity: int, level: str):
-    """The compiled scene query at a capacity with no overflow: (compiled, result)."""
+def scene(kind: str, count: int, args) -> dict:
+    """`count` shapes of a 64-shape pool at uniform random positions and rotations in a cube:
+    `collide` (compiled at a capacity with no overflow) against the brute force."""
+    data = core.make_data(kind, count, pool=64, seed=count)
+    shapes, poses = data.inputs()[:2]
+    side = SIDES[kind] * (count / 5000) ** (1 / 3)
+    poses = jaxsat.Pose(jnp.asarray((data.translation[0] + 1) / 2 * side, F32), poses.rotation)
+    start, capacity = time.perf_counter(), capacity_for(count // 16)
     while True:
         compiled = core.compile_aot(functools.partial(
-            jaxsat.collide, capacity=capacity, level=level), shapes, poses).call
+            jaxsat.collide, capacity=capacity, level=args.level), shapes, poses).call
         result = jax.block_until_ready(compiled(shapes, poses))
         if int(result.overflow) == 0:
-            return compiled, result
+            break
         capacity = capacity_for(int(result.count))
-
-def colliding(result) -> np.ndarray:
-    return np.asarray(result.pairs)[np.asarray(result.colliding)]
-
-def scene(kind: str, count: int, args) -> dict:
-    shapes, poses = make_scene(kind, count, SIDES[kind] * (count / 5000) ** (1 / 3), seed=count)
-    start = time.perf_counter()
-    compiled, result = scene_query(shapes, poses, capacity_for(count // 16), args.level)
     query = Variant("broad phase (collide)", "hashed grid, then SAT on AABB-overlapping pairs",
                     lambda: compiled(shapes, poses), time.perf_counter() - start, 1)
     total = count * (count - 1) // 2
     sample = jnp.asarray(np.random.default_rng(count).integers(
         0, count, (min(args.sample, total), 2)), jnp.int32)
-    brute = lambda s, p, q: jaxsat.query_pairs(  # noqa: E731
-        core.QUERIES[args.level], s, p, q, chunk_size=2**16)
+    brute = functools.partial(jaxsat.query_pairs, core.QUERIES[args.level], chunk_size=2**16)
     sampled = core.compile_aot(brute, shapes, poses, sample)
     estimate = core.time_calls({"": lambda: sampled.call(shapes, poses, sample)}, 1)[
         ""].best * total / len(sample)
-    found, kept = None, colliding(result)
+    found, kept = None, np.asarray(result.pairs)[np.asarray(result.colliding)]
     if estimate <= args.brute_force_budget:
-        rows, cols = np.triu_indices(count, 1)
-        every = jnp.asarray(np.stack([rows, cols], axis=1).astype(np.int32))
+        every = jnp.asarray(np.stack(np.triu_indices(count, 1), axis=1).astype(np.int32))
         jax.clear_caches()  # the sample may have had this shape
         full = core.compile_aot(brute, shapes, poses, every)
         brute_force = Variant("brute force, all pairs", f"{total:,} pairs x SAT",
@@ -296,9 +281,8 @@ def plan(args) -> list[tuple[str, Callable[[], dict]]]:
     jobs += [(f"unique axes {kind}", p(unique_axes, kind, n, 2, args))
              for kind in ("2d-rectangles", "2d-symmetric8", "3d-boxes")]
     jobs += [("Gauss map 3d-hulls", p(gauss_map, args.gauss_pairs, 3, args))]
-    jobs += [(f"AABB check {kind} {where}", p(aabb_single_calls, kind, args.single_calls, 4, args,
-                                             spread))
-             for kind in ("3d-boxes", "3d-hulls")
+    jobs += [(f"AABB check {kind} {where}", p(aabb_single_calls, kind, args.single_calls, 4,
+                                             args, spread)) for kind in ("3d-boxes", "3d-hulls")
              for where, spread in (("far", (3.0, 6.0)), ("near", (0.0, 1.8)))]
     return jobs + [("2D vs 3D", p(two_d_vs_3d, n, 6, args))]
 
@@ -307,32 +291,28 @@ def markdown(comparisons: list[dict]) -> str:
         return {"pairs/s": f"{row['items_per_s']:.3g} pairs/s",
                 "us/call": f"{1e6 * row['median_s']:.3g} us/call"}.get(
                     c["unit"], f"{row['median_s']:.3g} s/query")
-    return core.markdown_table(
-        ["skip", "shapes", "variant", "work per pair", "compile", "speed (median)", "speed-up",
-         "same results"],
+    return core.markdown_table(["skip", "shapes", "variant", "work per pair", "compile",
+                                "speed (median)", "speed-up", "same results"],
         [[c["skip"], c["case"], row["variant"], row["work"], f"{row['compile_s']:.2g} s",
           speed(c, row), ", ".join(f"{v:.2g}x vs {k}" for k, v in row["speedup"].items())
           or "-", describe(row["check"])] for c in comparisons for row in c["rows"]])
 
 def main(argv=None) -> int:
-    parser = core.parser(__doc__, ["3d-boxes", "3d-hulls"], sizes="shapes per scene")
-    parser.add_argument("--level", choices=list(core.QUERIES), default="penetration",
-                        help="scene query level and brute-force query")
-    parser.add_argument("--sample", type=int, default=2**20,
-                        help="pairs timed to extrapolate a brute force that is too long")
-    parser.add_argument("--brute-force-budget", type=float, default=120.0,
-                        help="run the brute force in full when estimated under this (s)")
-    for name, help_ in (("--pairs", "pairs per batched comparison"),
-                        ("--hull-pairs", "pairs of the hull levels"),
-                        ("--gauss-pairs", "hull pairs of the Gauss-map comparison"),
-                        ("--single-calls", "unbatched calls per AABB-check variant")):
-        parser.add_argument(name, type=int, help=help_)
-    parser.add_argument("--only", nargs="+", metavar="TEXT",
-                        help="only the comparisons whose label contains one of these")
-    args = core.parse(parser, argv, {
-        "cases": (["3d-boxes", "3d-hulls"],) * 2, "sizes": ([1_000, 10_000, 100_000], [1000]),
-        "repeats": (5, 2), "pairs": (100_000, 2000), "hull_pairs": (100_000, 1000),
-        "gauss_pairs": (20_000, 500), "single_calls": (500, 50)})
+    args = core.parse(argv, __doc__, {
+        "sizes": ([1_000, 10_000, 100_000], [1000]), "repeats": (5, 2), "pairs": (100_000, 2000),
+        "hull_pairs": (100_000, 1000), "gauss_pairs": (20_000, 500), "single_calls": (500, 50)},
+        ["3d-boxes", "3d-hulls"], "shapes per scene", options={
+            "--level": {"choices": list(core.QUERIES), "default": "penetration",
+                        "help": "scene query level and brute-force query"},
+            "--sample": {"type": int, "default": 2**20,
+                         "help": "pairs timed to extrapolate a brute force that is too long"},
+            "--brute-force-budget": {"type": float, "default": 120.0, "help":
+                                     "run the brute force in full when estimated under this (s)"},
+            "--pairs": "pairs per batched comparison", "--hull-pairs": "pairs of the hull levels",
+            "--gauss-pairs": "hull pairs of the Gauss-map comparison",
+            "--single-calls": "unbatched calls per AABB-check variant", "--only": {
+                "nargs": "+", "metavar": "TEXT",
+                "help": "only the comparisons whose label contains one of these"}})
     info, comparisons = core.machine_info(), []
     for label, run in plan(args):
         if args.only and not any(text in label for text in args.only):
@@ -342,9 +322,8 @@ def main(argv=None) -> int:
         comparisons.append(run())
         print(f"\n{label} ({time.perf_counter() - began:.0f} s):\n"
               + markdown(comparisons[-1:]).split("\n", 2)[2], file=sys.stderr, flush=True)
-    core.save(args, "scene", "jaxsat scenes and skipped work", info,
-              {"comparisons": comparisons, "tolerances": [DEPTH_TOLERANCE, NORMAL_TOLERANCE]},
-              markdown(comparisons))
+    core.save(args, "scene", "jaxsat scenes and skipped work", info, {"comparisons": comparisons,
+              "tolerances": [DEPTH_TOLERANCE, NORMAL_TOLERANCE]}, markdown(comparisons))
     return int(not all(not isinstance(row["check"], dict) or row["check"].get("same", True)
                        for c in comparisons for row in c["rows"]))
 

@@ -40,30 +40,22 @@ POOL = 128
 CHUNK = {"2d-polygons": 4096, "3d-boxes": 2048, "3d-hulls8": 512}
 DTYPES = ("float64", "float32")
 
-def pool_of(case, point_sets, dtype):
-    """Stacked shapes, repeated up to POOL entries."""
-    shapes = [harness.build(KIND[case], points, dtype) for points in point_sets]
-    return jaxsat.stack([shapes[i % len(shapes)] for i in range(POOL)])
-
 def degenerate_set(case, count, rng):
-    """Entries of the harness's catalogue moved by random rigid motions, most with a small
-    random perturbation of the pose parameters."""
+    """Catalogue entries under random rigid motions, most with their poses slightly perturbed."""
     dim = harness.CLASSES[KIND[case]]
     entries = [c for c in harness.CATALOGUE.values() if c.kind == KIND[case]]
     points = [e.points_a for e in entries] + [e.points_b for e in entries]
     pick = rng.integers(0, len(entries), count)
-    params_a, params_b = (np.array([getattr(entries[i], side) for i in pick], np.float64)
-                          for side in ("params_a", "params_b"))
-    zero = np.array([entries[i].zero_quaternion for i in pick])
     motion = harness.random_motion(dim, count, rng)
-    params_a, params_b = (harness.apply_motion(p, dim, motion) for p in (params_a, params_b))
+    params = [harness.apply_motion(np.array([getattr(entries[i], side) for i in pick], np.float64),
+                                   dim, motion) for side in ("params_a", "params_b")]
+    zero = np.array([entries[i].zero_quaternion for i in pick])
     size = rng.choice([0.0, 1e-12, 1e-9, 1e-6, 1e-3], count)
-    for params in (params_a, params_b):
-        noise = rng.normal(size=params.shape) * size[:, None]
+    for side in params:
+        noise = rng.normal(size=side.shape) * size[:, None]
         noise[zero, dim:] = 0.0  # keep zero quaternions zero
-        params += noise
-    unit = np.array([entries[i].unit for i in pick])
-    return points, pick, pick + len(entries), params_a, params_b, unit
+        side += noise
+    return points, pick, pick + len(entries), *params, np.array([entries[i].unit for i in pick])
 
 def random_set(case, count, rng, scale):
     """Random shapes of the harness's generators at a length scale, about half overlapping."""
@@ -74,22 +66,19 @@ def random_set(case, count, rng, scale):
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     centre = rng.uniform(-1, 1, (count, dim)) * scale
     offset = direction * rng.uniform(0.0, 2.5, (count, 1)) * scale
-    turns = (rng.uniform(-np.pi, np.pi, (count, 2)) if dim == 2 else rng.normal(size=(count, 8)))
-    half = turns.shape[1] // 2
-    params_a = np.concatenate([centre, turns[:, :half]], axis=1)
-    params_b = np.concatenate([centre + offset, turns[:, half:]], axis=1)
-    return points, index_a, index_b, params_a, params_b, np.full(count, scale)
+    turn_a, turn_b = np.split(rng.uniform(-np.pi, np.pi, (count, 2)) if dim == 2 else
+                              rng.normal(size=(count, 8)), 2, axis=1)
+    return (points, index_a, index_b, np.concatenate([centre, turn_a], axis=1),
+            np.concatenate([centre + offset, turn_b], axis=1), np.full(count, scale))
 
 def _one(pool, index_a, index_b, params_a, params_b, tau):
     a, b = (jax.tree.map(lambda x, i=i: x[i], pool) for i in (index_a, index_b))
-    out = {}
+    out = {"bound": jaxsat.smoothing_error_bound(a, b)}
     for name, smoothing in (("exact", None), ("smooth", tau)):
         f = lambda pa, pb, s=smoothing: jaxsat.signed_distance(  # noqa: E731
             a, core.pose(pa), b, core.pose(pb), smoothing=s)
-        value, (grad_a, grad_b) = jax.value_and_grad(f, argnums=(0, 1))(params_a, params_b)
-        out[name] = value
-        out[name + "_grad_finite"] = jnp.all(jnp.isfinite(grad_a)) & jnp.all(jnp.isfinite(grad_b))
-    out["bound"] = jaxsat.smoothing_error_bound(a, b)
+        out[name], grads = jax.value_and_grad(f, argnums=(0, 1))(params_a, params_b)
+        out[name + "_grad_finite"] = jnp.all(jnp.isfinite(jnp.concatenate(grads)))
     return out
 
 KERNEL = jax.jit(jax.vmap(_one, in_axes=(None, 0, 0, 0, 0, 0)))
@@ -109,12 +98,11 @@ def run_row(case, source, count, rng, oracle_samples):
     scale = SOURCES[source][1]
     points, ia, ib, pa, pb, unit = (random_set(case, count, rng, scale) if scale else
                                     degenerate_set(case, count, rng))
-    points = [harness.f32(p) for p in points]
-    pa, pb = harness.f32(pa), harness.f32(pb)
+    points, pa, pb = [harness.f32(p) for p in points], harness.f32(pa), harness.f32(pb)
     tau = TAU * unit
-    dtypes = DTYPES[:1] if source in FLOAT64_ONLY else DTYPES
-    out = {dtype: evaluate(case, pool_of(case, points, dtype), ia, ib, pa, pb, tau, dtype)
-           for dtype in dtypes}
+    out = {dtype: evaluate(case, jaxsat.stack([
+        harness.build(KIND[case], points[i % len(points)], dtype) for i in range(POOL)]),
+        ia, ib, pa, pb, tau, dtype) for dtype in DTYPES[:1 if source in FLOAT64_ONLY else 2]}
     reference = out["float64"]["exact"].astype(np.float64)
     size = unit + np.abs(reference)  # as the tests define it: tiny shapes may be far apart
     sample = rng.choice(count, min(oracle_samples, count), replace=False)
@@ -122,9 +110,8 @@ def run_row(case, source, count, rng, oracle_samples):
         KIND[case], points[ia[i] % len(points)], pa[i], points[ib[i] % len(points)], pb[i]))[0]
         for i in sample])
     row = {"class": case, "source": source, "configurations": count,
-           "oracle_samples": len(sample)}
-    row.update(core.stats("float64_exact_vs_oracle",
-                          np.abs(reference[sample] - truth) / size[sample]))
+           "oracle_samples": len(sample), **core.stats(
+               "float64_exact_vs_oracle", np.abs(reference[sample] - truth) / size[sample])}
     for dtype, result in out.items():
         row[f"{dtype}_nonfinite_values"] = sum(
             int(np.sum(~np.isfinite(result[k]))) for k in ("exact", "smooth"))
@@ -148,18 +135,16 @@ def cells(row) -> list:
         return f"{core.num(row.get(prefix + '_max'))} / {core.num(row.get(prefix + '_median'))}"
     def nonfinite(kind):
         return ", ".join(core.num(row.get(f"{d}_nonfinite_{kind}")) for d in DTYPES)
-    ratio = row["float64_smooth_over_bound_max"]
     return [row["class"], row["source"], row["configurations"], nonfinite("values"),
             nonfinite("grads"), f"{pair('float64_exact_vs_oracle')} ({row['oracle_samples']})",
             pair("float32_exact"), pair("float64_smooth"), pair("float32_smooth"),
-            core.num(ratio)]
+            core.num(row["float64_smooth_over_bound_max"])]
 
 def main(argv=None) -> int:
-    parser = core.parser(__doc__, sizes=None, timing=False)
-    parser.add_argument("--configs", type=int,
-                        help="configurations in all, split over classes and sources")
-    parser.add_argument("--oracle-samples", type=int, help="oracle checks per row")
-    args = core.parse(parser, argv, {"configs": (110_000, 3000), "oracle_samples": (2000, 100)})
+    args = core.parse(argv, __doc__, {"configs": (110_000, 3000), "oracle_samples": (2000, 100)},
+                      sizes=None, timing=False, options={
+                          "--configs": "configurations in all, split over classes and sources",
+                          "--oracle-samples": "oracle checks per row"})
     rng, info, rows = np.random.default_rng(args.seed), core.machine_info(), []
     for case, share in SHARES.items():
         for source, (fraction, _) in SOURCES.items():

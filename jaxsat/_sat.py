@@ -77,25 +77,75 @@ class ProjectedAxes(NamedTuple):
                          ).astype(jnp.int32)
 
 
+_ROW_BLOCK = 8
+"""Rows of Gauss-map edge-pair depths computed and reduced at a time (`GaussMapAxes`)."""
+
+_LOOP_ROWS = 24
+"""Hulls with more edges than this (20-vertex hulls have 54; 8-vertex hulls at most 18) take
+the Gauss-map row minima in a loop of `_ROW_BLOCK` rows."""
+
+
 class GaussMapAxes(NamedTuple):
     """Edge-edge candidates of two hulls, one per pair of hull edges (K_a, K_b), with depths
-    from Plucker moments (see `_edge_axes_by_gauss_map`); only a winner's axis is built."""
+    from Plucker moments (see `_gauss_map_depths`), computed where needed; only a winner's
+    axis is built."""
 
-    depths: jax.Array
-    """(K_a, K_b) float: depth of each edge pair that forms a Minkowski face; inf otherwise."""
-    directions_a: jax.Array
-    """(K_a, D) float: a's unit hull-edge directions."""
-    directions_b: jax.Array
-    """(K_b, D) float: b's, in a's frame."""
-    normals_a: jax.Array
-    """(K_a, D) float: the second face normal at each of a's hull edges (fixes the sense)."""
+    edges_a: tuple
+    """a's hull edges (`_hull_edge_frames`): points (K_a, D), unit directions (K_a, D), and
+    the two face normals at each (K_a, D) each."""
+    edges_b: tuple
+    """b's, in a's frame."""
+
+    @property
+    def directions_a(self) -> jax.Array:
+        return self.edges_a[1]
+
+    @property
+    def directions_b(self) -> jax.Array:
+        return self.edges_b[1]
+
+    @property
+    def depths(self) -> jax.Array:
+        """(K_a, K_b) float: depth of each edge pair that forms a Minkowski face; inf
+        otherwise."""
+        return _gauss_map_depths(self.edges_a, self.edges_b)
+
+    def row_minima(self) -> jax.Array:
+        """(K_a,) the smallest depth of each row; for more than _LOOP_ROWS rows, computed
+        _ROW_BLOCK rows at a time in a loop: XLA hands a large min reduction to a library
+        call that stores its whole input (all K_a x K_b depths of 1e5 pairs of 20-vertex
+        hulls take 1.1 GB), and blocks outside a loop would all be stored at once."""
+        count = self.edges_a[0].shape[0]
+        if count <= _LOOP_ROWS:  # small enough to store; a loop costs compile time
+            return jnp.min(self.depths, axis=1)
+        blocks = -(-count // _ROW_BLOCK)
+        # Padded by repeating row 0 (its depths again), cut off at the end.
+        padded = tuple(jnp.concatenate([part, jnp.broadcast_to(
+            part[:1], (blocks * _ROW_BLOCK - count, *part.shape[1:]))]) for part in self.edges_a)
+
+        def block(index, minima):
+            start = index * _ROW_BLOCK
+            rows = tuple(jax.lax.dynamic_slice_in_dim(part, start, _ROW_BLOCK)
+                         for part in padded)
+            found = jnp.min(_gauss_map_depths(rows, self.edges_b), axis=1)
+            return jax.lax.dynamic_update_slice_in_dim(minima, found, start, 0)
+
+        dtype = self.edges_a[0].dtype
+        minima = jnp.zeros((blocks * _ROW_BLOCK,), dtype) + 0 * padded[0][0, 0]
+        return jax.lax.fori_loop(0, blocks, block, minima)[:count]
+
+    def row(self, index) -> jax.Array:
+        """(K_b,) row `index` of `depths`, computed again from the edges (not read from a
+        stored matrix: see `row_minima`)."""
+        edges_a = tuple(part[index][None] for part in self.edges_a)
+        return _gauss_map_depths(edges_a, self.edges_b)[0]
 
     def axis(self, index) -> jax.Array:
         """(D,) the unit axis of flattened edge pair `index`, its sense given by the
-        orientation rule of `_edge_axes_by_gauss_map` (BDC > 0)."""
+        orientation rule of `_gauss_map_depths` (BDC > 0)."""
         row, col = jnp.divmod(index, self.directions_b.shape[0])
         crossed = cross(self.directions_a[row], self.directions_b[col])
-        sign = where(jnp.dot(self.normals_a[row], self.directions_b[col]) > 0, 1.0, -1.0)
+        sign = where(jnp.dot(self.edges_a[3][row], self.directions_b[col]) > 0, 1.0, -1.0)
         return sign * safe_normalize(crossed, 0.0)[0]
 
 
@@ -156,7 +206,16 @@ def _hull_edge_frames(shape: Polytope, rotation=None, translation=None):
 
 
 def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation) -> GaussMapAxes:
-    """Edge-edge candidates only for hull-edge pairs that form a Minkowski face.
+    """Edge-edge candidates only for hull-edge pairs that form a Minkowski face
+    (`_gauss_map_depths`)."""
+    edges_a = _hull_edge_frames(a)
+    edges_b = _hull_edge_frames(b, rotation, translation)
+    return GaussMapAxes(edges_a, edges_b)
+
+
+def _gauss_map_depths(edges_a, edges_b) -> jax.Array:
+    """(K_a, K_b) depths of hull-edge pairs (edges as `_hull_edge_frames` gives them), inf
+    for pairs that form no Minkowski face.
 
     Two edges can give the penetration axis only if their arcs on the Gauss map cross (the
     arc of a's edge and the arc of b's edge with b's normals negated); for those pairs the
@@ -165,8 +224,8 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation) -> 
     -(e_b . m_a + e_a . m_b) / |n|, signed so the axis points out of a. Other pairs are
     skipped: their axes never give the minimum. (The moment form cancels digits in float32;
     `sat_search` measures the winner again by projection, so that only affects near-ties.)"""
-    points_a, dir_a, na1, na2 = _hull_edge_frames(a)
-    points_b, dir_b, nb1, nb2 = _hull_edge_frames(b, rotation, translation)
+    points_a, dir_a, na1, na2 = edges_a
+    points_b, dir_b, nb1, nb2 = edges_b
     cba, dba = -project(dir_a, nb1), -project(dir_a, nb2)
     adc, bdc = project(na1, dir_b), project(na2, dir_b)
     minkowski_face = (cba * dba < 0) & (adc * bdc < 0) & (cba * bdc > 0)
@@ -184,7 +243,7 @@ def _edge_axes_by_gauss_map(a: Polytope, b: Polytope, rotation, translation) -> 
     moment_a, moment_b = cross(dir_a, points_a), cross(dir_b, points_b)
     numerator = -project(moment_a, dir_b) - project(dir_a, moment_b)
     depths = where(valid, numerator * orientation * inverse_sine, jnp.inf)
-    return GaussMapAxes(depths, dir_a, dir_b, na2)
+    return depths
 
 
 def _use_gauss_map(a: Polytope, b: Polytope) -> bool:
@@ -211,18 +270,20 @@ def candidates(frame: PairFrame, prune: bool = True) -> Candidates:
 
 
 def _winner(depths: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """(min, flat argmin) of one group's depths, in the forms XLA runs fastest on CPU.
+    """(min, flat argmin) of one group's depths: jnp.argmin, and the minimum read at that
+    index (a separate min reduction measured slower)."""
+    index = jnp.argmin(depths)
+    return depths[index], index
 
-    A flat group takes jnp.argmin and reads the minimum at that index (a separate min
-    reduction measured slower). A 2-D group (the Gauss-map edge pairs, K_a x K_b) is reduced
-    to its row minima, then the argmin of those and of the winning row: a flat argmin over
-    the K_a K_b depths (XLA's variadic reduce) took 60% of a 20-vertex hull query."""
-    if depths.ndim == 1:
-        index = jnp.argmin(depths)
-        return depths[index], index
-    row_minima = jnp.min(depths, axis=1)
+
+def _gauss_map_winner(gauss_map: GaussMapAxes) -> tuple[jax.Array, jax.Array]:
+    """(min, flat argmin) of the Gauss-map edge pairs' depths: the argmin of the row minima,
+    then the argmin of the winning row. A flat argmin over the K_a K_b depths (XLA's variadic
+    reduce) took 60% of a 20-vertex hull query."""
+    row_minima = gauss_map.row_minima()
     row = jnp.argmin(row_minima)
-    return row_minima[row], row * depths.shape[1] + jnp.argmin(depths[row])
+    return row_minima[row], row * gauss_map.directions_b.shape[0] + jnp.argmin(
+        gauss_map.row(row))
 
 
 def _smallest(entries):
@@ -245,7 +306,7 @@ def _winners(found: Candidates, exclude_near=None, min_cosine=None):
     depth, index = _winner(depths)
     entries = [(depth, projected.axis(index), projected.feature(index))]
     if found.gauss_map is not None:
-        depth, index = _winner(found.gauss_map.depths)
+        depth, index = _gauss_map_winner(found.gauss_map)
         axis = found.gauss_map.axis(index)
         if exclude_near is not None:
             depth = where(dot(axis, exclude_near) >= min_cosine, jnp.inf, depth)
