@@ -18,6 +18,7 @@ import jax
 import numpy as np
 import oracle
 import pytest
+from scipy.spatial import ConvexHull
 
 import jaxsat
 from jaxsat._pair import EAGER_COMPILER_OPTIONS
@@ -195,6 +196,17 @@ def _mixed_hull(rng: np.random.Generator, scale: float):
     return points, lambda dtype: jaxsat.polyhedron(points.astype(dtype), 20, dtype=dtype)
 
 
+def _sphere_or_capsule(rng: np.random.Generator, scale: float):
+    """A sphere or a capsule along local z (radius 0.05-0.6, half length up to 1, 0 one time in
+    ten), either at random: raw points are the core's (one point, or the segment's two ends)."""
+    radius = float(f32(rng.uniform(0.05, 0.6) * scale))
+    if rng.integers(2) == 0:
+        return np.zeros((1, 3)), lambda dtype: jaxsat.sphere(np.asarray(radius, dtype))
+    half = float(f32(rng.uniform(0.0, 1.0) * scale)) if rng.uniform() > 0.1 else 0.0
+    ends = np.array([[0.0, 0.0, -half], [0.0, 0.0, half]])
+    return ends, lambda dtype: jaxsat.capsule(np.asarray(half, dtype), np.asarray(radius, dtype))
+
+
 GENERATORS = {
     "poly8": (2, _polygon8),
     "hexagon": (2, _hexagon),
@@ -202,6 +214,7 @@ GENERATORS = {
     "hull8": (3, functools.partial(_hull, count=8)),
     "hull20": (3, functools.partial(_hull, count=20)),
     "hull": (3, _mixed_hull),
+    "segment": (3, _sphere_or_capsule),
 }
 
 
@@ -211,7 +224,13 @@ class Pool:
 
     dim: int
     points: list[np.ndarray]
+    """Each shape's raw local points: its vertices, or its core's for a rounded shape."""
     shapes: jaxsat.Polytope
+
+    @property
+    def radii(self) -> np.ndarray:
+        """(N,) float64 radius of each shape (0 for sharp ones), as the queries see it."""
+        return np.asarray(self.shapes.radius, np.float64)
 
     def concatenate(self, other: Pool) -> Pool:
         """This pool's shapes, then `other`'s (same dimension and size class)."""
@@ -392,15 +411,41 @@ class Reference:
     normal_is_unique: bool
     size: float
     world_a: np.ndarray
+    """a's world points (its core's, for a rounded shape)."""
     world_b: np.ndarray
+    radius_a: float = 0.0
+    radius_b: float = 0.0
+
+    def surface_gap(self, side: int, point) -> float:
+        """How far `point` is from the surface of a (side 0) or b (side 1); 0 inside a sharp
+        shape."""
+        world, radius = ((self.world_a, self.radius_a) if side == 0 else
+                         (self.world_b, self.radius_b))
+        if len(world) <= 2:  # a point or segment core
+            return abs(oracle.segment_distance(point, point, world[0], world[-1]) - radius)
+        return oracle.distance_to_hull(ConvexHull(world), point)
 
 
 def references(pairs: Pairs, tie_factor: float = 10.0) -> list[Reference]:
+    """The oracle's answer for each pair: the Minkowski difference of the world points, or for
+    spheres and capsules (cores of at most two points) the closed form of the cores' closest
+    points minus the radii."""
     world_a, world_b = world_points(pairs)
+    radii_a = pairs.pool_a.radii[pairs.index_a]
+    radii_b = pairs.pool_b.radii[pairs.index_b]
     refs = []
-    for a, b in zip(world_a, world_b, strict=True):
-        size = max(oracle.bounding_radius(a), oracle.bounding_radius(b))
-        o = oracle.evaluate(a, b, tie_factor * RELATIVE_TOLERANCE[pairs.dtype] * size)
+    for a, b, ra, rb in zip(world_a, world_b, radii_a, radii_b, strict=True):
+        size = max(oracle.bounding_radius(a) + ra, oracle.bounding_radius(b) + rb)
+        tie = tie_factor * RELATIVE_TOLERANCE[pairs.dtype] * size
+        if len(a) <= 2 and len(b) <= 2:
+            p, q = oracle.segment_closest_points(a[0], a[-1], b[0], b[-1])
+            gap = float(np.linalg.norm(q - p))
+            value = gap - ra - rb
+            normal = (q - p) / gap if gap > 0 else np.zeros(pairs.dim)
+            refs.append(Reference(value, -value, normal, gap > tie, size, a, b, ra, rb))
+            continue
+        assert ra == rb == 0, "rounded polytopes: see test_rounded.py"
+        o = oracle.evaluate(a, b, tie)
         value = o.distance if o.depth < 0 else -o.depth
         refs.append(Reference(value, o.depth, o.normal, o.normal_is_unique, size, a, b))
     return refs
@@ -584,6 +629,10 @@ CLASSES = {"poly8": 2, "box": 3, "hull8": 3}
 """Size classes: 2D polygons padded to 8 vertices, 3D boxes (unpadded, the projection path of
 the SAT search), 3D hulls padded to 8 vertices (the Gauss-map path)."""
 
+PROPERTY_CLASSES = {**CLASSES, "segment": 3}
+"""The generic properties' size classes: also spheres and capsules stacked alone (cores of at
+most 2 vertices, the closed form of `_closest.closest_pair_of_segments`)."""
+
 
 
 def _pose(values, turn=None) -> np.ndarray:
@@ -607,15 +656,18 @@ class Config:
     """Length unit: tau = TAU * unit, finite-difference steps scale with it."""
     zero_quaternion: bool = False
     """The distance is discontinuous in the quaternion at 0: no finite differences there."""
+    radius_a: float = 0.0
+    """Radius of a rounded a (a sphere or a capsule: `points_a` is its core)."""
+    radius_b: float = 0.0
 
     def __post_init__(self):
-        for name in ("points_a", "points_b", "params_a", "params_b"):
+        for name in ("points_a", "points_b", "params_a", "params_b", "radius_a", "radius_b"):
             object.__setattr__(self, name, f32(getattr(self, name)))
         assert len(self.params_a) == len(self.params_b) == (3 if self.dim == 2 else 7)
 
     @property
     def dim(self) -> int:
-        return CLASSES[self.kind]
+        return PROPERTY_CLASSES[self.kind]
 
     def scaled(self, factor: float) -> Config:
         """Lengths (points, translations) times factor; rotations unchanged."""
@@ -624,7 +676,8 @@ class Config:
         return dataclasses.replace(
             self, points_a=self.points_a * factor, points_b=self.points_b * factor,
             params_a=scale(self.params_a), params_b=scale(self.params_b),
-            unit=self.unit * factor)
+            unit=self.unit * factor, radius_a=self.radius_a * factor,
+            radius_b=self.radius_b * factor)
 
     def moved(self, offset) -> Config:
         """Both translations plus `offset`."""
@@ -636,7 +689,7 @@ class Config:
 
 
 def _pair(kind, points_a, pose_a, points_b, pose_b, **extra) -> Config:
-    if CLASSES[kind] == 3:
+    if PROPERTY_CLASSES[kind] == 3:
         identity = [1.0, 0.0, 0.0, 0.0]
         pose_a, pose_b = (p if len(p) == 7 else np.concatenate([p, identity])
                           for p in (pose_a, pose_b))
@@ -744,7 +797,47 @@ CATALOGUE = _catalogue()
 NAMES = list(CATALOGUE)
 
 
-def build(kind: str, points: np.ndarray, dtype) -> jaxsat.Polytope:
+def _capsule_core(half: float) -> np.ndarray:
+    return np.array([[0.0, 0.0, -half], [0.0, 0.0, half]])
+
+
+def _rounded_catalogue() -> dict[str, Config]:
+    """Spheres and capsules (kind "segment"): coincident, collinear, parallel, crossing, end to
+    end, zero length, far from the origin and at tiny and huge scales."""
+    c, s, point = {}, "segment", np.zeros((1, 3))
+    rod = _capsule_core(1.0)
+    quarter_x = quaternion([1, 0, 0], np.pi / 2)
+    pair = lambda *args, radius_a=0.25, radius_b=0.25: _pair(  # noqa: E731
+        s, *args, radius_a=radius_a, radius_b=radius_b)
+    c["coincident-spheres"] = pair(point, _pose([0, 0, 0]), point, _pose([0, 0, 0]),
+                                   radius_a=0.5)
+    c["sphere-centre-on-capsule-axis"] = pair(rod, _pose([0, 0, 0]), point, _pose([0, 0, 0.5]))
+    c["touching-spheres"] = pair(point, _pose([0, 0, 0]), point, _pose([0, 0.5, 0]))
+    c["collinear-capsules"] = pair(rod, _pose([0, 0, 0]), rod, _pose([0, 0, 0.5]))
+    c["parallel-capsules"] = pair(rod, _pose([0, 0, 0]), rod, _pose([1, 0, 0.5]))
+    c["crossing-capsules"] = pair(rod, _pose([0, 0, 0]), rod, _pose([0, 0, 0], quarter_x))
+    c["end-to-end-capsules"] = pair(rod, _pose([0, 0, 0]), rod, _pose([0, 0, 2.5]))
+    c["zero-length-capsule"] = pair(_capsule_core(0.0), _pose([0.3, 0, 0]), rod,
+                                    _pose([0, 0, 0], Q_GENERIC))
+    c["nearly-parallel-capsules"] = pair(rod, _pose([0, 0, 0]), rod, _pose(
+        [0.4, 0, 0.3], quaternion([0, 1, 0], 1e-8)))
+    c["far-capsules"] = c["parallel-capsules"].moved([1e4, 1e4, 1e4])
+    c["tiny-crossing-capsules"] = c["crossing-capsules"].scaled(TINY)
+    c["huge-parallel-capsules"] = c["parallel-capsules"].scaled(HUGE)
+    return c
+
+
+ROUNDED_CATALOGUE = _rounded_catalogue()
+"""Degenerate configurations of the rounded size class (apart from `CATALOGUE`, which the
+stability tests run through the polytope oracle)."""
+
+
+def build(kind: str, points: np.ndarray, dtype, radius: float = 0.0) -> jaxsat.Polytope:
+    if kind == "segment":  # one point: a sphere; two ends on local z: a capsule
+        radius = np.asarray(radius, dtype)
+        if len(points) == 1:
+            return jaxsat.sphere(radius)
+        return jaxsat.capsule(np.asarray(points[1, 2], dtype), radius)
     if kind == "poly8":
         return jaxsat.polygon(points, 8, dtype=dtype)
     if kind == "box":
@@ -773,10 +866,12 @@ def world(config: Config):
 def catalogue_pairs(size_class: str, dtype) -> Pairs:
     """Every catalogue configuration of a size class, as pairs over one pool (a of entry k is
     shape 2k, b is shape 2k + 1)."""
-    entries = [c for c in CATALOGUE.values() if c.kind == size_class]
+    entries = [c for c in [*CATALOGUE.values(), *ROUNDED_CATALOGUE.values()]
+               if c.kind == size_class]
     points = [p for c in entries for p in (c.points_a, c.points_b)]
-    shapes = Pool(CLASSES[size_class], points,
-                  jaxsat.stack([build(size_class, p, dtype) for p in points]))
+    radii = [r for c in entries for r in (c.radius_a, c.radius_b)]
+    shapes = Pool(PROPERTY_CLASSES[size_class], points, jaxsat.stack(
+        [build(size_class, p, dtype, r) for p, r in zip(points, radii, strict=True)]))
     index = 2 * np.arange(len(entries))
     return Pairs(shapes, shapes, index, index + 1,
                  param_columns([c.params_a for c in entries], dtype),
@@ -817,10 +912,10 @@ FAST_COMBINATIONS = {("box", np.float32)}
 
 
 def every_query_class_dtype(test):
-    """Run `test(query, size_class, dtype)` for every public query, size class of the
-    catalogue (`CLASSES`) and dtype; all but `FAST_COMBINATIONS` are marked slow."""
+    """Run `test(query, size_class, dtype)` for every public query, size class
+    (`PROPERTY_CLASSES`) and dtype; all but `FAST_COMBINATIONS` are marked slow."""
     cases = [pytest.param(query, size_class, dtype, id=f"{query}-{size_class}-{dtype.__name__}",
                           marks=() if (size_class, dtype) in FAST_COMBINATIONS
                           else pytest.mark.slow)
-             for query in QUERIES for size_class in CLASSES for dtype in DTYPES]
+             for query in QUERIES for size_class in PROPERTY_CLASSES for dtype in DTYPES]
     return pytest.mark.parametrize(("query", "size_class", "dtype"), cases)(test)
