@@ -1,4 +1,12 @@
-"""Session-wide test configuration: float64 support and deterministic hypothesis settings."""
+"""Session-wide test configuration: float64 support, strict dtype promotion, one compilation
+cache per test run, and deterministic hypothesis settings."""
+
+import atexit
+import os
+import pathlib
+import shutil
+import tempfile
+import uuid
 
 import jax
 from hypothesis import HealthCheck, settings
@@ -9,6 +17,18 @@ jax.config.update("jax_enable_x64", True)
 # Strict promotion: mixing float32 and float64 arrays (or ints and floats) raises instead of
 # silently widening, so a query whose output dtype does not follow its inputs fails here.
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+
+# One compilation cache per test run, shared by both xdist workers and the processes they start
+# (notebook kernels, scripts), so that a program compiles once per run however many test files
+# build it (compiling is most of the suite's time). It starts empty and is removed at exit:
+# nothing carries over from one run to the next.
+_RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID") or uuid.uuid4().hex
+_CACHE = pathlib.Path(tempfile.gettempdir()) / f"jaxsat-test-compilations-{_RUN}"
+os.environ["JAX_COMPILATION_CACHE_DIR"] = str(_CACHE)
+os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
+jax.config.update("jax_compilation_cache_dir", str(_CACHE))
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+atexit.register(shutil.rmtree, _CACHE, ignore_errors=True)
 
 settings.register_profile(
     "jaxsat",
