@@ -230,6 +230,8 @@ class Pool:
     @property
     def radii(self) -> np.ndarray:
         """(N,) float64 radius of each shape (0 for sharp ones), as the queries see it."""
+        if self.shapes.radius is None:  # a sharp batch
+            return np.zeros(len(self.points))
         return np.asarray(self.shapes.radius, np.float64)
 
     def concatenate(self, other: Pool) -> Pool:
