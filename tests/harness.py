@@ -224,22 +224,26 @@ class Pool:
 
     dim: int
     points: list[np.ndarray]
-    """Each shape's raw local points: its vertices, or its core's for a rounded shape."""
+    """Each shape's raw local points: its vertices, or its core's for a rounded shape; for a
+    half-space one row, its normal then its offset."""
     shapes: jaxsat.Polytope
+    planes: bool = False
+    """The shapes are half-spaces (`jaxsat.HalfSpace`, stacked)."""
 
     @property
     def radii(self) -> np.ndarray:
-        """(N,) float64 radius of each shape (0 for sharp ones), as the queries see it."""
-        if self.shapes.radius is None:  # a sharp batch
+        """(N,) float64 radius of each shape (0 for sharp ones and half-spaces), as the
+        queries see it."""
+        if getattr(self.shapes, "radius", None) is None:
             return np.zeros(len(self.points))
         return np.asarray(self.shapes.radius, np.float64)
 
     def concatenate(self, other: Pool) -> Pool:
         """This pool's shapes, then `other`'s (same dimension and size class)."""
-        assert self.dim == other.dim
+        assert self.dim == other.dim and self.planes == other.planes
         return Pool(self.dim, self.points + other.points,
                     jax.tree.map(lambda x, y: np.concatenate([np.asarray(x), np.asarray(y)]),
-                                 self.shapes, other.shapes))
+                                 self.shapes, other.shapes), self.planes)
 
 
 def make_pool(name: str, dtype, rng: np.random.Generator, scale: float = 1.0,
@@ -258,6 +262,26 @@ def make_pool(name: str, dtype, rng: np.random.Generator, scale: float = 1.0,
 @functools.cache
 def pool(name: str, dtype, scale: float = 1.0, seed: int = 0) -> Pool:
     return make_pool(name, dtype, np.random.default_rng([seed, len(name)]), scale)
+
+
+def plane_pool(normals, offsets, dtype) -> Pool:
+    """Half-spaces normal . x <= offset (normals need not be unit), stacked."""
+    planes = [jaxsat.halfspace(f32(n), f32(o), dtype=dtype)
+              for n, o in zip(normals, offsets, strict=True)]
+    rows = [np.concatenate([np.asarray(h.normal, np.float64),
+                            [float(np.asarray(h.offset, np.float64))]])[None] for h in planes]
+    return Pool(len(rows[0][0]) - 1, rows, jax.tree.map(lambda *x: np.stack(x), *planes), True)
+
+
+@functools.cache
+def pools(name: str, dtype) -> tuple[Pool, Pool]:
+    """The pools a and b of the property suite's size class `name`: one pool for both, but
+    for "halfspace" random half-spaces (a) against boxes (b)."""
+    if name != "halfspace":
+        return pool(name, dtype), pool(name, dtype)
+    rng = np.random.default_rng([11, len(name)])
+    return (plane_pool(rng.normal(size=(12, 3)), rng.uniform(-0.5, 0.5, 12), dtype),
+            pool("box", dtype))
 
 
 def hand_pool(dim: int, shapes_and_points) -> Pool:
@@ -396,10 +420,18 @@ def world_points(pairs: Pairs):
     world = []
     for shapes, index, params in ((pairs.pool_a, pairs.index_a, pairs.params_a),
                                   (pairs.pool_b, pairs.index_b, pairs.params_b)):
-        world.append([oracle.to_world(shapes.points[i], r, t) for i, r, t in
+        place = _world_plane if shapes.planes else oracle.to_world
+        world.append([place(shapes.points[i], r, t) for i, r, t in
                       zip(index, rotations(pairs.dim, params), translations(pairs.dim, params),
                           strict=True)])
     return world[0], world[1]
+
+
+def _world_plane(row, rotation, translation) -> np.ndarray:
+    """A half-space's (normal, offset) row moved by a pose: the world normal R n and offset
+    offset + R n . t."""
+    normal = rotation @ row[0, :-1]
+    return np.concatenate([normal, [row[0, -1] + normal @ translation]])[None]
 
 
 @dataclasses.dataclass
@@ -417,12 +449,17 @@ class Reference:
     world_b: np.ndarray
     radius_a: float = 0.0
     radius_b: float = 0.0
+    plane_a: bool = False
+    """a is a half-space: `world_a` is its world (normal, offset) row."""
+    plane_b: bool = False
 
     def surface_gap(self, side: int, point) -> float:
         """How far `point` is from the surface of a (side 0) or b (side 1); 0 inside a sharp
         shape."""
         world, radius = ((self.world_a, self.radius_a) if side == 0 else
                          (self.world_b, self.radius_b))
+        if (self.plane_a, self.plane_b)[side]:
+            return abs(world[0, :-1] @ point - world[0, -1])
         if len(world) <= 2:  # a point or segment core
             return abs(oracle.segment_distance(point, point, world[0], world[-1]) - radius)
         return oracle.distance_to_hull(ConvexHull(world), point)
@@ -436,6 +473,9 @@ def references(pairs: Pairs, tie_factor: float = 10.0) -> list[Reference]:
     radii_a = pairs.pool_a.radii[pairs.index_a]
     radii_b = pairs.pool_b.radii[pairs.index_b]
     refs = []
+    if pairs.pool_a.planes or pairs.pool_b.planes:
+        return [_plane_reference(a, b, ra, rb, pairs.pool_a.planes)
+                for a, b, ra, rb in zip(world_a, world_b, radii_a, radii_b, strict=True)]
     for a, b, ra, rb in zip(world_a, world_b, radii_a, radii_b, strict=True):
         size = max(oracle.bounding_radius(a) + ra, oracle.bounding_radius(b) + rb)
         tie = tie_factor * RELATIVE_TOLERANCE[pairs.dtype] * size
@@ -451,6 +491,18 @@ def references(pairs: Pairs, tie_factor: float = 10.0) -> list[Reference]:
         value = o.distance if o.depth < 0 else -o.depth
         refs.append(Reference(value, o.depth, o.normal, o.normal_is_unique, size, a, b))
     return refs
+
+
+def _plane_reference(a, b, radius_a, radius_b, plane_is_a: bool) -> Reference:
+    """A half-space and a shape, by hand: the signed distance is the lowest height of the
+    shape's world points above the plane minus its radius, along the plane's normal (from a to
+    b: the normal when the half-space is a, minus it when it is b)."""
+    plane, points, radius = (a, b, radius_b) if plane_is_a else (b, a, radius_a)
+    normal = plane[0, :-1]
+    value = float(np.min(points @ normal - plane[0, -1])) - radius
+    size = oracle.bounding_radius(points) + radius
+    return Reference(value, -value, normal if plane_is_a else -normal, True, size, a, b,
+                     radius_a, radius_b, plane_is_a, not plane_is_a)
 
 
 def run_batched(function, count: int, *args):
@@ -631,9 +683,10 @@ CLASSES = {"poly8": 2, "box": 3, "hull8": 3}
 """Size classes: 2D polygons padded to 8 vertices, 3D boxes (unpadded, the projection path of
 the SAT search), 3D hulls padded to 8 vertices (the Gauss-map path)."""
 
-PROPERTY_CLASSES = {**CLASSES, "segment": 3}
+PROPERTY_CLASSES = {**CLASSES, "segment": 3, "halfspace": 3}
 """The generic properties' size classes: also spheres and capsules stacked alone (cores of at
-most 2 vertices, the closed form of `_closest.closest_pair_of_segments`)."""
+most 2 vertices, the closed form of `_closest.closest_pair_of_segments`), and half-spaces
+against boxes (`pools`)."""
 
 
 
@@ -868,6 +921,8 @@ def world(config: Config):
 def catalogue_pairs(size_class: str, dtype) -> Pairs:
     """Every catalogue configuration of a size class, as pairs over one pool (a of entry k is
     shape 2k, b is shape 2k + 1)."""
+    if size_class == "halfspace":
+        return _halfspace_catalogue_pairs(dtype)
     entries = [c for c in [*CATALOGUE.values(), *ROUNDED_CATALOGUE.values()]
                if c.kind == size_class]
     points = [p for c in entries for p in (c.points_a, c.points_b)]
@@ -878,6 +933,33 @@ def catalogue_pairs(size_class: str, dtype) -> Pairs:
     return Pairs(shapes, shapes, index, index + 1,
                  param_columns([c.params_a for c in entries], dtype),
                  param_columns([c.params_b for c in entries], dtype), dtype)
+
+
+def _halfspace_catalogue_pairs(dtype) -> Pairs:
+    """The ground z <= 0 under a unit cube resting on a face, on an edge and on a corner
+    (touching exactly, up to float32's sqrt 2 and 3), sunk halfway, just apart, far from the
+    origin, and at tiny and huge scales; a tilted plane through the cube's centre."""
+    edge, corner = quaternion([1, 0, 0], np.pi / 4), quaternion([1, -1, 0], np.arctan(np.sqrt(
+        2)))
+    cases = [  # (plane normal, offset, cube centre, cube turn, length scale)
+        ([0, 0, 1], 0.0, [0, 0, 1], IDENTITY, 1.0),
+        ([0, 0, 1], 0.0, [0.3, 0, np.sqrt(2)], edge, 1.0),
+        ([0, 0, 1], 0.0, [0, 0.2, np.sqrt(3)], corner, 1.0),
+        ([0, 0, 1], 0.0, [0, 0, 0.5], IDENTITY, 1.0),
+        ([0, 0, 1], 0.0, [0, 0, 1 + 1e-3], IDENTITY, 1.0),
+        ([0, 0, 1], 1e4, [1e4, 1e4, 1e4 + 1], IDENTITY, 1.0),
+        ([0, 0, 1], 0.0, [0, 0, 1], IDENTITY, TINY),
+        ([0, 0, 1], 0.0, [0, 0, 1], IDENTITY, HUGE),
+        ([1, 1, 1], 0.0, [0, 0, 0], Q_OTHER, 1.0),
+    ]
+    planes = plane_pool([c[0] for c in cases], [c[1] * c[4] for c in cases], dtype)
+    cubes = Pool(3, [CUBE * c[4] for c in cases],
+                 jaxsat.stack([build("box", CUBE * c[4], dtype) for c in cases]))
+    index = np.arange(len(cases))
+    identity = np.tile(np.concatenate([np.zeros(3), IDENTITY]), (len(cases), 1))
+    params_b = [np.concatenate([np.asarray(c[2]) * c[4], c[3]]) for c in cases]
+    return Pairs(planes, cubes, index, index, param_columns(identity, dtype),
+                 param_columns(params_b, dtype), dtype)
 
 
 @functools.cache

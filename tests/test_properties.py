@@ -10,12 +10,12 @@ dtype (`harness.every_query_class_dtype`):
 * moving both shapes by one rigid motion keeps depths and distances, rotates normals and moves
   points.
 
-The size classes are the polytope ones and spheres and capsules stacked alone
-(`harness.PROPERTY_CLASSES`). Comparisons use tolerances relative to the pair's size from the
-independent oracle (`oracle.py`; the cores' closest points minus the radii for spheres and
-capsules). Each (query, size class, dtype) compiles one jitted function, shared by every
-property: value and pose gradients of a batch of `harness.BATCH` pairs, compiled with
-`harness.FAST_COMPILE`.
+The size classes are the polytope ones, spheres and capsules stacked alone, and half-spaces
+against boxes (`harness.PROPERTY_CLASSES`). Comparisons use tolerances relative to the pair's
+size from the independent oracle (`oracle.py`; the cores' closest points minus the radii for
+spheres and capsules; the lowest vertex's height for a half-space). Each (query, size class,
+dtype) compiles one jitted function, shared by every property: value and pose gradients of a
+batch of `harness.BATCH` pairs, compiled with `harness.FAST_COMPILE`.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from harness import (
     catalogue_pairs,
     every_query_class_dtype,
     make_pose,
-    pool,
+    pools,
     random_motion,
     random_pairs,
     references,
@@ -107,8 +107,7 @@ def normal(name: str, out):
 
 def random_and_catalogue_pairs(size_class: str, dtype, seed: int) -> Pairs:
     """BATCH random pairs of the size class, then every catalogue configuration of it."""
-    shapes = pool(size_class, dtype)
-    random = random_pairs(shapes, shapes, BATCH, np.random.default_rng(seed), dtype)
+    random = random_pairs(*pools(size_class, dtype), BATCH, np.random.default_rng(seed), dtype)
     return random.concatenate(catalogue_pairs(size_class, dtype))
 
 
@@ -134,7 +133,7 @@ def test_finite_values_and_gradients_on_random_and_degenerate_pairs(query, size_
 
 @every_query_class_dtype
 def test_float_outputs_follow_the_input_dtype(query, size_class, dtype):
-    pairs = random_pairs(pool(size_class, dtype), pool(size_class, dtype), 4,
+    pairs = random_pairs(*pools(size_class, dtype), 4,
                          np.random.default_rng(2), dtype)
     out, grads = evaluate(query, pairs)
     floats = [leaf for leaf in jax.tree.leaves((out, grads))
@@ -146,7 +145,7 @@ def test_float_outputs_follow_the_input_dtype(query, size_class, dtype):
 @pytest.mark.slow  # each eager call compiles its query (0.2-4 s)
 @every_query_class_dtype
 def test_jitted_vmap_equals_eager_calls_pair_by_pair(query, size_class, dtype):
-    pairs = random_pairs(pool(size_class, dtype), pool(size_class, dtype), 2,
+    pairs = random_pairs(*pools(size_class, dtype), 2,
                          np.random.default_rng(3), dtype)
     batched_out, _ = evaluate(query, pairs)
     sizes = np.array([r.size for r in references(pairs)])
@@ -161,7 +160,7 @@ def test_jitted_vmap_equals_eager_calls_pair_by_pair(query, size_class, dtype):
 
 @every_query_class_dtype
 def test_swapping_the_shapes_keeps_the_value_and_flips_the_normal(query, size_class, dtype):
-    pairs = random_pairs(pool(size_class, dtype), pool(size_class, dtype), BATCH,
+    pairs = random_pairs(*pools(size_class, dtype), BATCH,
                          np.random.default_rng(4), dtype)
     refs = references(pairs)
     sizes = np.array([r.size for r in refs])
@@ -192,7 +191,7 @@ def test_swapping_the_shapes_keeps_the_value_and_flips_the_normal(query, size_cl
 def test_a_common_rigid_motion_moves_points_and_normals_and_keeps_values(query, size_class,
                                                                         dtype):
     rng = np.random.default_rng(5)
-    pairs = random_pairs(pool(size_class, dtype), pool(size_class, dtype), BATCH, rng, dtype)
+    pairs = random_pairs(*pools(size_class, dtype), BATCH, rng, dtype)
     refs = references(pairs)
     sizes = np.array([r.size for r in refs])
     motion = tuple(m[0] for m in random_motion(pairs.dim, 1, rng))
