@@ -460,9 +460,15 @@ class Reference:
                          (self.world_b, self.radius_b))
         if (self.plane_a, self.plane_b)[side]:
             return abs(world[0, :-1] @ point - world[0, -1])
-        if len(world) <= 2:  # a point or segment core
-            return abs(oracle.segment_distance(point, point, world[0], world[-1]) - radius)
-        return oracle.distance_to_hull(ConvexHull(world), point)
+        return abs(distance_to_core(point, world) - radius)
+
+
+def distance_to_core(point, world_core) -> float:
+    """Distance from `point` to a shape's core given by its world points: a point or a segment
+    (at most two points: spheres, circles, capsules), else their convex hull (0 inside)."""
+    if len(world_core) <= 2:
+        return oracle.segment_distance(point, point, world_core[0], world_core[-1])
+    return oracle.distance_to_hull(ConvexHull(world_core), point)
 
 
 def references(pairs: Pairs, tie_factor: float = 10.0) -> list[Reference]:

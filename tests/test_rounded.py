@@ -18,7 +18,6 @@ import jax.numpy as jnp
 import numpy as np
 import oracle
 import pytest
-from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 import jaxsat
@@ -101,12 +100,6 @@ def core_signed_distance(world_a, world_b, degenerate_a, degenerate_b) -> float:
         return oracle.segment_distance(*ends(world_a), *ends(world_b))
     found = oracle.evaluate(world_a, world_b)
     return found.distance if found.depth < 0 else -found.depth
-
-
-def distance_to_core(point, world_core, degenerate) -> float:
-    if degenerate:
-        return oracle.segment_distance(point, point, world_core[0], world_core[-1])
-    return oracle.distance_to_hull(ConvexHull(world_core), point)
 
 
 POOL_CASES = [pytest.param(names, dtype, id=f"{names[0]}-{names[1]}-{dtype.__name__}",
@@ -220,8 +213,8 @@ def test_rounded_queries_match_the_cores_oracle_minus_the_radii(names, dtype):
                                    err_msg=label)
         if expected > tolerance:
             checked_apart += 1
-            on_a = distance_to_core(found.point_a[i], world_a[i], pool_a.degenerate(index_a))
-            on_b = distance_to_core(found.point_b[i], world_b[i], pool_b.degenerate(index_b))
+            on_a = harness.distance_to_core(found.point_a[i], world_a[i])
+            on_b = harness.distance_to_core(found.point_b[i], world_b[i])
             assert abs(on_a - ra) <= tolerance and abs(on_b - rb) <= tolerance, label
     assert checked_apart >= len(pairs) // 8
 
@@ -288,10 +281,8 @@ def test_rounded_contacts_follow_the_cores_oracle(names, dtype):
             if np.max(depths) < depth - tol - 2e-3 * case.size[i]:
                 problems.append(f"deepest {np.max(depths)} < {depth}")
         for point, point_depth in zip(points, depths, strict=True):
-            on_a = distance_to_core(point + point_depth / 2 * normal, world_a[i],
-                                    pool_a.degenerate(index_a))
-            on_b = distance_to_core(point - point_depth / 2 * normal, world_b[i],
-                                    pool_b.degenerate(index_b))
+            on_a = harness.distance_to_core(point + point_depth / 2 * normal, world_a[i])
+            on_b = harness.distance_to_core(point - point_depth / 2 * normal, world_b[i])
             if on_a > ra + tol or on_b > rb + tol:
                 problems.append(f"surface points {on_a}, {on_b} from the cores (r {ra}, {rb})")
             if abs(point_depth - depth) <= tol and not (abs(on_a - ra) <= tol
@@ -789,7 +780,7 @@ def test_halfspace_queries_match_the_lowest_vertex(name, dtype):
         on_plane = first.point_a[i] @ world_normals[i] - world_offsets[i]
         assert abs(on_plane) <= tolerance, label
         if expected > tolerance:
-            on_shape = distance_to_core(first.point_b[i], world, pool.degenerate(index[i]))
+            on_shape = harness.distance_to_core(first.point_b[i], world)
             assert abs(on_shape - radius) <= tolerance, label
         assert abs(found["penetration"].depth[i] + expected) <= tolerance, label
         if abs(expected) > tolerance:
