@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from harness import FAST_COMPILE
 from scipy.spatial.transform import Rotation
 
 import jaxsat
@@ -36,7 +37,10 @@ def _random_boxes(rng, count, dim, world, size_range, dtype=np.float64):
     return (centres - half).astype(dtype), (centres + half).astype(dtype)
 
 
-_jit_broad_phase = jax.jit(jaxsat.broad_phase, static_argnames=("capacity", "candidate_capacity"))
+# XLA's cheaper build: the broad phase sorts and compares, its outputs are integers and flags
+# that no optimisation level changes, and every capacity compiles anew (half the file's time).
+_jit_broad_phase = jax.jit(jaxsat.broad_phase, static_argnames=("capacity", "candidate_capacity"),
+                           compiler_options=FAST_COMPILE)
 
 
 @pytest.mark.slow
