@@ -207,6 +207,18 @@ def _sphere_or_capsule(rng: np.random.Generator, scale: float):
     return ends, lambda dtype: jaxsat.capsule(np.asarray(half, dtype), np.asarray(radius, dtype))
 
 
+def _rounded_or_sharp(rng: np.random.Generator, scale: float):
+    """A sphere, a capsule, a rounded box (radius 0.05-0.6) or a sharp box: stacked together
+    they are the rounded kind in the box size class. Raw points are the core's."""
+    if rng.integers(2) == 0:
+        return _sphere_or_capsule(rng, scale)
+    corners, box = _box(rng, scale)
+    if rng.integers(2) == 0:
+        return corners, box
+    radius = float(f32(rng.uniform(0.05, 0.6) * scale))
+    return corners, lambda dtype: jaxsat.rounded(box(dtype), np.asarray(radius, dtype))
+
+
 GENERATORS = {
     "poly8": (2, _polygon8),
     "hexagon": (2, _hexagon),
@@ -215,6 +227,7 @@ GENERATORS = {
     "hull20": (3, functools.partial(_hull, count=20)),
     "hull": (3, _mixed_hull),
     "segment": (3, _sphere_or_capsule),
+    "rounded": (3, _rounded_or_sharp),
 }
 
 
@@ -442,7 +455,9 @@ class Reference:
     """Exact signed distance: the distance when apart, minus the depth when overlapping."""
     depth: float
     normal: np.ndarray
+    """The oracle's facet normal attaining the (cores') depth (`oracle.Oracle.normal`)."""
     normal_is_unique: bool
+    """Where the shapes overlap, whether their penetration normal is unique."""
     size: float
     world_a: np.ndarray
     """a's world points (its core's, for a rounded shape)."""
@@ -472,9 +487,9 @@ def distance_to_core(point, world_core) -> float:
 
 
 def references(pairs: Pairs, tie_factor: float = 10.0) -> list[Reference]:
-    """The oracle's answer for each pair: the Minkowski difference of the world points, or for
-    spheres and capsules (cores of at most two points) the closed form of the cores' closest
-    points minus the radii."""
+    """The oracle's answer for each pair: the Minkowski difference of the world points (of
+    the cores, minus the radii, for rounded shapes), or for two spheres or capsules (cores of
+    at most two points) the closed form of the cores' closest points minus the radii."""
     world_a, world_b = world_points(pairs)
     radii_a = pairs.pool_a.radii[pairs.index_a]
     radii_b = pairs.pool_b.radii[pairs.index_b]
@@ -492,10 +507,18 @@ def references(pairs: Pairs, tie_factor: float = 10.0) -> list[Reference]:
             normal = (q - p) / gap if gap > 0 else np.zeros(pairs.dim)
             refs.append(Reference(value, -value, normal, gap > tie, size, a, b, ra, rb))
             continue
-        assert ra == rb == 0, "rounded polytopes: see test_rounded.py"
         o = oracle.evaluate(a, b, tie)
         value = o.distance if o.depth < 0 else -o.depth
-        refs.append(Reference(value, o.depth, o.normal, o.normal_is_unique, size, a, b))
+        if ra == rb == 0 and len(a) > 2 and len(b) > 2:
+            refs.append(Reference(value, o.depth, o.normal, o.normal_is_unique, size, a, b))
+            continue
+        # A rounded pair (or a sphere or capsule against a polytope): the cores' signed
+        # distance minus the radii. Its normal is the cores' penetration axis where they
+        # overlap, else their closest direction, which is unique once they are clear of
+        # touching.
+        unique = o.normal_is_unique if o.depth >= 0 else o.distance > tie
+        value -= ra + rb
+        refs.append(Reference(value, -value, o.normal, unique, size, a, b, ra, rb))
     return refs
 
 
@@ -689,10 +712,11 @@ CLASSES = {"poly8": 2, "box": 3, "hull8": 3}
 """Size classes: 2D polygons padded to 8 vertices, 3D boxes (unpadded, the projection path of
 the SAT search), 3D hulls padded to 8 vertices (the Gauss-map path)."""
 
-PROPERTY_CLASSES = {**CLASSES, "segment": 3, "halfspace": 3}
+PROPERTY_CLASSES = {**CLASSES, "segment": 3, "rounded": 3, "halfspace": 3}
 """The generic properties' size classes: also spheres and capsules stacked alone (cores of at
-most 2 vertices, the closed form of `_closest.closest_pair_of_segments`), and half-spaces
-against boxes (`pools`)."""
+most 2 vertices, the closed form of `_closest.closest_pair_of_segments`), spheres, capsules,
+rounded and sharp boxes stacked together (the rounded kind: every pair of those kinds), and
+half-spaces against boxes (`pools`)."""
 
 
 
@@ -864,7 +888,10 @@ def _capsule_core(half: float) -> np.ndarray:
 
 def _rounded_catalogue() -> dict[str, Config]:
     """Spheres and capsules (kind "segment"): coincident, collinear, parallel, crossing, end to
-    end, zero length, far from the origin and at tiny and huge scales."""
+    end, zero length, far from the origin and at tiny and huge scales. With rounded and sharp
+    boxes (kind "rounded"): touching face to face, on an edge, at a corner, a capsule lying
+    on a face, a sphere at a box's centre (a six-way tie), identical, nearly parallel, far,
+    tiny and huge."""
     c, s, point = {}, "segment", np.zeros((1, 3))
     rod = _capsule_core(1.0)
     quarter_x = quaternion([1, 0, 0], np.pi / 2)
@@ -885,6 +912,28 @@ def _rounded_catalogue() -> dict[str, Config]:
     c["far-capsules"] = c["parallel-capsules"].moved([1e4, 1e4, 1e4])
     c["tiny-crossing-capsules"] = c["crossing-capsules"].scaled(TINY)
     c["huge-parallel-capsules"] = c["parallel-capsules"].scaled(HUGE)
+    # The rounded kind: rounded and sharp boxes with spheres and capsules.
+    r = "rounded"
+    c["rounded-boxes-face-to-face"] = _pair(r, CUBE, _pose([0, 0, 0]), CUBE,
+                                            _pose([2.5, 0.25, -0.5]), radius_a=0.25,
+                                            radius_b=0.25)
+    c["rounded-box-on-a-box-edge"] = _pair(r, CUBE, _pose([0, 0, 0]), CUBE, _pose(
+        [0.3, 0, 1.25 + np.sqrt(2)], quaternion([1, 0, 0], np.pi / 4)), radius_a=0.25)
+    c["sphere-at-a-rounded-box-corner"] = _pair(r, CUBE, _pose([0, 0, 0]), point, _pose(
+        np.ones(3) * (1 + 0.5 / np.sqrt(3))), radius_a=0.25, radius_b=0.25)
+    c["capsule-lying-on-a-rounded-box"] = _pair(r, CUBE, _pose([0, 0, 0]), rod, _pose(
+        [0.2, 0.1, 1.3], quaternion([0, 1, 0], np.pi / 2)), radius_a=0.1, radius_b=0.25)
+    c["sphere-at-a-rounded-box-centre"] = _pair(r, CUBE, _pose([0, 0, 0]), point,
+                                                _pose([0, 0, 0]), radius_a=0.2, radius_b=0.1)
+    c["identical-rounded-boxes"] = _pair(r, BRICK, _pose([0.1, 0.2, 0.3], Q_GENERIC), BRICK,
+                                         _pose([0.1, 0.2, 0.3], Q_GENERIC), radius_a=0.2,
+                                         radius_b=0.2)
+    c["nearly-parallel-rounded-boxes"] = _pair(
+        r, CUBE, _pose([0, 0, 0]), CUBE, _pose([2.5, 0.5, 0.25], quaternion([0, 0, 1], 1e-8)),
+        radius_a=0.25, radius_b=0.25)
+    c["far-rounded-boxes"] = c["rounded-boxes-face-to-face"].moved([1e4, 1e4, 1e4])
+    c["tiny-sphere-at-a-corner"] = c["sphere-at-a-rounded-box-corner"].scaled(TINY)
+    c["huge-capsule-on-a-box"] = c["capsule-lying-on-a-rounded-box"].scaled(HUGE)
     return c
 
 
@@ -894,17 +943,21 @@ stability tests run through the polytope oracle)."""
 
 
 def build(kind: str, points: np.ndarray, dtype, radius: float = 0.0) -> jaxsat.Polytope:
-    if kind == "segment":  # one point: a sphere; two ends on local z: a capsule
+    """A configuration's shape from its raw points (a core's, with `radius`): in the
+    "segment" and "rounded" kinds one point is a sphere and two ends on local z a capsule;
+    centred box corners are a box (rounded where the radius is positive)."""
+    if kind in ("segment", "rounded") and len(points) <= 2:
         radius = np.asarray(radius, dtype)
         if len(points) == 1:
             return jaxsat.sphere(radius)
         return jaxsat.capsule(np.asarray(points[1, 2], dtype), radius)
     if kind == "poly8":
         return jaxsat.polygon(points, 8, dtype=dtype)
-    if kind == "box":
+    if kind in ("box", "rounded"):
         half = np.max(np.abs(points), axis=0)
         assert np.allclose(np.abs(points), half), "box configurations use centred box corners"
-        return jaxsat.box(half, dtype=dtype)
+        shape = jaxsat.box(half, dtype=dtype)
+        return jaxsat.rounded(shape, np.asarray(radius, dtype)) if radius > 0 else shape
     return jaxsat.polyhedron(points, 8, dtype=dtype)
 
 

@@ -10,10 +10,11 @@ dtype (`harness.every_query_class_dtype`):
 * moving both shapes by one rigid motion keeps depths and distances, rotates normals and moves
   points.
 
-The size classes are the polytope ones, spheres and capsules stacked alone, and half-spaces
-against boxes (`harness.PROPERTY_CLASSES`). Comparisons use tolerances relative to the pair's
-size from the independent oracle (`oracle.py`; the cores' closest points minus the radii for
-spheres and capsules; the lowest vertex's height for a half-space). Each (query, size class,
+The size classes are the polytope ones, spheres and capsules stacked alone, spheres, capsules,
+rounded and sharp boxes stacked together, and half-spaces against boxes
+(`harness.PROPERTY_CLASSES`). Comparisons use tolerances relative to the pair's size from the
+independent oracle (`oracle.py`: the cores' Minkowski difference, or closest points for two
+spheres or capsules, minus the radii; the lowest vertex's height for a half-space). Each (query, size class,
 dtype) compiles one jitted function, shared by every property: value and pose gradients of a
 batch of `harness.BATCH` pairs, compiled with `harness.FAST_COMPILE`.
 """
