@@ -25,9 +25,6 @@ import jaxsat
 COUNT = 2 * harness.BATCH
 
 
-DEGENERATE_KINDS = ("sphere", "capsule", "circle", "capsule2")
-"""Kinds whose core is a point or a segment."""
-
 POOL_KINDS = {
     "box-class": ("sphere", "capsule", "rounded_box", "box"),
     "hull-class": ("sphere", "capsule", "rounded_hull"),
@@ -49,9 +46,6 @@ class RoundedPool:
     kinds: list[str]
     pool: harness.Pool
     radii: np.ndarray
-
-    def degenerate(self, index: int) -> bool:
-        return self.kinds[index] in DEGENERATE_KINDS
 
 
 def _kind_shape(kind: str, rng: np.random.Generator, dtype):
@@ -87,21 +81,6 @@ def rounded_pool(name: str, dtype, per_kind: int = 3) -> RoundedPool:
                        np.asarray(stacked.radius, np.float64))
 
 
-def core_signed_distance(world_a, world_b, degenerate_a, degenerate_b) -> float:
-    """The cores' exact signed distance: the Minkowski difference oracle where that difference
-    is full-dimensional, else (two points or segments in 3D, parallel segments or a point and
-    a segment in 2D: a flat difference, which touches the origin at most) the closed form of
-    the distance between the segments."""
-    difference = oracle.minkowski_difference(world_a, world_b)
-    spread = np.linalg.svd(difference - difference.mean(axis=0), compute_uv=False)
-    flat = spread[-1] <= 1e-9 * max(spread[0], 1e-300)
-    if degenerate_a and degenerate_b and flat:
-        ends = lambda w: (w[0], w[-1])  # noqa: E731
-        return oracle.segment_distance(*ends(world_a), *ends(world_b))
-    found = oracle.evaluate(world_a, world_b)
-    return found.distance if found.depth < 0 else -found.depth
-
-
 POOL_CASES = [pytest.param(names, dtype, id=f"{names[0]}-{names[1]}-{dtype.__name__}",
                            marks=() if (names[0], dtype) == ("polygon-class", np.float64)
                            else pytest.mark.slow)
@@ -134,8 +113,7 @@ def rounded_pairs(name_a: str, name_b: str, dtype) -> RoundedPairs:
     expected, size = [], []
     for i, (index_a, index_b) in enumerate(zip(pairs.index_a, pairs.index_b, strict=True)):
         ra, rb = pool_a.radii[index_a], pool_b.radii[index_b]
-        core = core_signed_distance(world_a[i], world_b[i], pool_a.degenerate(index_a),
-                                    pool_b.degenerate(index_b))
+        core = harness.core_signed_distance(world_a[i], world_b[i])
         expected.append(core - ra - rb)
         size.append(max(oracle.bounding_radius(world_a[i]) + ra,
                         oracle.bounding_radius(world_b[i]) + rb))
@@ -651,7 +629,7 @@ def test_compounds_of_rounded_pieces_against_the_oracle():
     overlapping = 0
     for i in range(count):
         world_box = harness.corners(halves[i]) @ rotations[i].T + translations[i]
-        depths = [-(core_signed_distance(core, world_box, True, False) - radius)
+        depths = [-(harness.core_signed_distance(core, world_box) - radius)
                   for core, radius in pieces]
         label = f"pair {i}: {depths}"
         assert abs(float(found.depth[i]) - max(depths)) <= 1e-9, label
