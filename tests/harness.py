@@ -529,9 +529,9 @@ def references(pairs: Pairs, tie_factor: float = 10.0) -> list[Reference]:
             refs.append(Reference(value, o.depth, o.normal, o.normal_is_unique, size, a, b))
             continue
         # A rounded pair (or a sphere or capsule against a polytope): the cores' signed
-        # distance minus the radii. Its normal is the cores' penetration axis where they
-        # overlap, else their closest direction, which is unique once they are clear of
-        # touching.
+        # distance minus the radii. The queries' normal is the cores' penetration axis where
+        # they overlap, else their closest direction, which is unique once they are clear of
+        # touching (the stored normal stays the oracle's facet normal).
         unique = o.normal_is_unique if o.depth >= 0 else o.distance > tie
         value -= ra + rb
         refs.append(Reference(value, -value, o.normal, unique, size, a, b, ra, rb))
