@@ -219,6 +219,25 @@ def _rounded_or_sharp(rng: np.random.Generator, scale: float):
     return corners, lambda dtype: jaxsat.rounded(box(dtype), np.asarray(radius, dtype))
 
 
+def _circle_capsule_or_polygon(rng: np.random.Generator, scale: float):
+    """2D: a circle, a capsule along local x (radius 0.05-0.6, half length up to 1, 0 one time
+    in ten), a rounded polygon or a sharp one (`_polygon8`), at random: stacked together they
+    are the rounded kind in the 8-vertex polygon class. Raw points are the core's."""
+    radius = float(f32(rng.uniform(0.05, 0.6) * scale))
+    kind = rng.integers(4)
+    if kind == 0:
+        return np.zeros((1, 2)), lambda dtype: jaxsat.circle(np.asarray(radius, dtype))
+    if kind == 1:
+        half = float(f32(rng.uniform(0.0, 1.0) * scale)) if rng.uniform() > 0.1 else 0.0
+        ends = np.array([[-half, 0.0], [half, 0.0]])
+        return ends, lambda dtype: jaxsat.capsule(np.asarray(half, dtype),
+                                                  np.asarray(radius, dtype), dim=2)
+    points, polygon = _polygon8(rng, scale)
+    if kind == 2:
+        return points, polygon
+    return points, lambda dtype: jaxsat.rounded(polygon(dtype), np.asarray(radius, dtype))
+
+
 GENERATORS = {
     "poly8": (2, _polygon8),
     "hexagon": (2, _hexagon),
@@ -228,6 +247,7 @@ GENERATORS = {
     "hull": (3, _mixed_hull),
     "segment": (3, _sphere_or_capsule),
     "rounded": (3, _rounded_or_sharp),
+    "rounded2d": (2, _circle_capsule_or_polygon),
 }
 
 
@@ -486,25 +506,36 @@ def distance_to_core(point, world_core) -> float:
     return oracle.distance_to_hull(ConvexHull(world_core), point)
 
 
+def segments_in_closed_form(world_a, world_b) -> bool:
+    """Whether two cores are points or segments whose Minkowski difference is flat (always in
+    3D; parallel segments or a point and a segment in 2D): it touches the origin at most, so
+    the closed form of the segments' distance is their signed distance, and the hull oracle
+    cannot take it. Two crossing segments in 2D overlap by a depth, which only the oracle
+    gives."""
+    if len(world_a) > 2 or len(world_b) > 2:
+        return False
+    if len(world_a[0]) == 3:
+        return True
+    difference = oracle.minkowski_difference(world_a, world_b)
+    spread = np.linalg.svd(difference - difference.mean(axis=0), compute_uv=False)
+    return bool(spread[-1] <= 1e-9 * max(spread[0], 1e-300))
+
+
 def core_signed_distance(world_a, world_b) -> float:
     """The exact signed distance of two cores given by their world points: the
-    Minkowski-difference oracle, or where that difference is flat (two points or segments in
-    3D; parallel segments or a point and a segment in 2D: it touches the origin at most) the
-    closed form of the distance between the segments. Two crossing segments in 2D overlap
-    by a depth, which only the oracle gives."""
-    if len(world_a) <= 2 and len(world_b) <= 2:
-        difference = oracle.minkowski_difference(world_a, world_b)
-        spread = np.linalg.svd(difference - difference.mean(axis=0), compute_uv=False)
-        if len(world_a[0]) == 3 or spread[-1] <= 1e-9 * max(spread[0], 1e-300):
-            return oracle.segment_distance(world_a[0], world_a[-1], world_b[0], world_b[-1])
+    Minkowski-difference oracle, or the closed form of two points or segments where that
+    difference is flat (`segments_in_closed_form`)."""
+    if segments_in_closed_form(world_a, world_b):
+        return oracle.segment_distance(world_a[0], world_a[-1], world_b[0], world_b[-1])
     found = oracle.evaluate(world_a, world_b)
     return found.distance if found.depth < 0 else -found.depth
 
 
 def references(pairs: Pairs, tie_factor: float = 10.0) -> list[Reference]:
     """The oracle's answer for each pair: the Minkowski difference of the world points (of
-    the cores, minus the radii, for rounded shapes), or for two spheres or capsules (cores of
-    at most two points) the closed form of the cores' closest points minus the radii."""
+    the cores, minus the radii, for rounded shapes), or for two points or segments whose
+    difference is flat (`segments_in_closed_form`) the closed form of the cores' closest
+    points minus the radii."""
     world_a, world_b = world_points(pairs)
     radii_a = pairs.pool_a.radii[pairs.index_a]
     radii_b = pairs.pool_b.radii[pairs.index_b]
@@ -515,8 +546,7 @@ def references(pairs: Pairs, tie_factor: float = 10.0) -> list[Reference]:
     for a, b, ra, rb in zip(world_a, world_b, radii_a, radii_b, strict=True):
         size = max(oracle.bounding_radius(a) + ra, oracle.bounding_radius(b) + rb)
         tie = tie_factor * RELATIVE_TOLERANCE[pairs.dtype] * size
-        if len(a) <= 2 and len(b) <= 2:
-            assert pairs.dim == 3, "2D segments may cross: see core_signed_distance"
+        if segments_in_closed_form(a, b):
             p, q = oracle.segment_closest_points(a[0], a[-1], b[0], b[-1])
             gap = float(np.linalg.norm(q - p))
             value = gap - ra - rb
@@ -728,11 +758,11 @@ CLASSES = {"poly8": 2, "box": 3, "hull8": 3}
 """Size classes: 2D polygons padded to 8 vertices, 3D boxes (unpadded, the projection path of
 the SAT search), 3D hulls padded to 8 vertices (the Gauss-map path)."""
 
-PROPERTY_CLASSES = {**CLASSES, "segment": 3, "rounded": 3, "halfspace": 3}
+PROPERTY_CLASSES = {**CLASSES, "segment": 3, "rounded": 3, "rounded2d": 2, "halfspace": 3}
 """The generic properties' size classes: also spheres and capsules stacked alone (cores of at
 most 2 vertices, the closed form of `_closest.closest_pair_of_segments`), spheres, capsules,
-rounded and sharp boxes stacked together (the rounded kind: every pair of those kinds), and
-half-spaces against boxes (`pools`)."""
+rounded and sharp boxes stacked together (the rounded kind: every pair of those kinds), the
+same in 2D with circles, capsules and polygons, and half-spaces against boxes (`pools`)."""
 
 
 
@@ -907,7 +937,8 @@ def _rounded_catalogue() -> dict[str, Config]:
     end, zero length, far from the origin and at tiny and huge scales. With rounded and sharp
     boxes (kind "rounded"): touching face to face, on an edge, at a corner, a capsule lying
     on a face, a sphere at a box's centre (a six-way tie), identical, nearly parallel, far,
-    tiny and huge."""
+    tiny and huge. In 2D (kind "rounded2d"): the same with circles, capsules and squares, and
+    two crossing capsules."""
     c, s, point = {}, "segment", np.zeros((1, 3))
     rod = _capsule_core(1.0)
     quarter_x = quaternion([1, 0, 0], np.pi / 2)
@@ -949,6 +980,27 @@ def _rounded_catalogue() -> dict[str, Config]:
         radius_a=0.25, radius_b=0.25)
     c["far-rounded-boxes"] = c["rounded-boxes-face-to-face"].moved([1e4, 1e4, 1e4])
     c["tiny-sphere-at-a-corner"] = c["sphere-at-a-rounded-box-corner"].scaled(TINY)
+    # The same in 2D: circles, capsules along x, rounded and sharp polygons.
+    r2, dot, stick = "rounded2d", np.zeros((1, 2)), np.array([[-1.0, 0.0], [1.0, 0.0]])
+    c["rounded-squares-side-by-side"] = _pair(r2, SQUARE, _pose([0, 0, 0]), SQUARE,
+                                              _pose([2.5, 0.25, 0]), radius_a=0.25,
+                                              radius_b=0.25)
+    corner = 1 + 0.5 / np.sqrt(2)
+    c["circle-at-a-rounded-corner"] = _pair(r2, SQUARE, _pose([0, 0, 0]), dot,
+                                            _pose([corner, corner, 0]), radius_a=0.25,
+                                            radius_b=0.25)
+    c["capsule-on-a-rounded-square"] = _pair(r2, SQUARE, _pose([0, 0, 0]), stick,
+                                             _pose([0.2, 1.3, 0]), radius_a=0.1,
+                                             radius_b=0.25)
+    c["crossing-2d-capsules"] = _pair(r2, stick, _pose([0, 0, 0]), stick,
+                                      _pose([0.2, 0.1, np.pi / 2]), radius_a=0.1, radius_b=0.2)
+    c["circle-at-a-square-centre"] = _pair(r2, SQUARE, _pose([0, 0, 0]), dot, _pose([0, 0, 0]),
+                                           radius_a=0.2, radius_b=0.1)
+    c["identical-rounded-pentagons"] = _pair(r2, PENTAGON, _pose([0.1, 0.2, 0.3]), PENTAGON,
+                                             _pose([0.1, 0.2, 0.3]), radius_a=0.2,
+                                             radius_b=0.2)
+    c["far-rounded-squares"] = c["rounded-squares-side-by-side"].moved([1e4, 1e4])
+    c["huge-capsule-on-a-square"] = c["capsule-on-a-rounded-square"].scaled(HUGE)
     c["huge-capsule-on-a-box"] = c["capsule-lying-on-a-rounded-box"].scaled(HUGE)
     return c
 
@@ -960,15 +1012,18 @@ stability tests run through the polytope oracle)."""
 
 def build(kind: str, points: np.ndarray, dtype, radius: float = 0.0) -> jaxsat.Polytope:
     """A configuration's shape from its raw points (a core's, with `radius`): in the
-    "segment" and "rounded" kinds one point is a sphere and two ends on local z a capsule;
-    centred box corners are a box (rounded where the radius is positive)."""
-    if kind in ("segment", "rounded") and len(points) <= 2:
-        radius = np.asarray(radius, dtype)
+    "segment" and rounded kinds one point is a sphere (a circle in 2D) and two ends on local
+    z (x in 2D) a capsule; centred box corners are a box, other 2D points a polygon (rounded
+    where the radius is positive)."""
+    if kind in ("segment", "rounded", "rounded2d") and len(points) <= 2:
+        radius, dim = np.asarray(radius, dtype), len(points[0])
         if len(points) == 1:
-            return jaxsat.sphere(radius)
-        return jaxsat.capsule(np.asarray(points[1, 2], dtype), radius)
-    if kind == "poly8":
-        return jaxsat.polygon(points, 8, dtype=dtype)
+            return jaxsat.sphere(radius) if dim == 3 else jaxsat.circle(radius)
+        return jaxsat.capsule(np.asarray(points[1, dim - 1 if dim == 3 else 0], dtype), radius,
+                              dim=dim)
+    if kind in ("poly8", "rounded2d"):
+        shape = jaxsat.polygon(points, 8, dtype=dtype)
+        return jaxsat.rounded(shape, np.asarray(radius, dtype)) if radius > 0 else shape
     if kind in ("box", "rounded"):
         half = np.max(np.abs(points), axis=0)
         assert np.allclose(np.abs(points), half), "box configurations use centred box corners"

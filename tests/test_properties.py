@@ -11,12 +11,13 @@ dtype (`harness.every_query_class_dtype`):
   points.
 
 The size classes are the polytope ones, spheres and capsules stacked alone, spheres, capsules,
-rounded and sharp boxes stacked together, and half-spaces against boxes
-(`harness.PROPERTY_CLASSES`). Comparisons use tolerances relative to the pair's size from the
-independent oracle (`oracle.py`: the cores' Minkowski difference, or closest points for two
-spheres or capsules, minus the radii; the lowest vertex's height for a half-space). Each
-(query, size class, dtype) compiles one jitted function, shared by every property: value and
-pose gradients of a batch of `harness.BATCH` pairs, compiled with `harness.FAST_COMPILE`.
+rounded and sharp boxes stacked together (in 2D circles, capsules, rounded and sharp
+polygons), and half-spaces against boxes (`harness.PROPERTY_CLASSES`). Comparisons use
+tolerances relative to the pair's size from the independent oracle (`oracle.py`: the cores'
+Minkowski difference, or closest points for two points or segments, minus the radii; the
+lowest vertex's height for a half-space). Each (query, size class, dtype) compiles one
+jitted function, shared by every property: value and pose gradients of a batch of
+`harness.BATCH` pairs, compiled with `harness.FAST_COMPILE`.
 """
 
 from __future__ import annotations
