@@ -196,15 +196,25 @@ def _mixed_hull(rng: np.random.Generator, scale: float):
     return points, lambda dtype: jaxsat.polyhedron(points.astype(dtype), 20, dtype=dtype)
 
 
-def _sphere_or_capsule(rng: np.random.Generator, scale: float):
-    """A sphere or a capsule along local z (radius 0.05-0.6, half length up to 1, 0 one time in
-    ten), either at random: raw points are the core's (one point, or the segment's two ends)."""
-    radius = float(f32(rng.uniform(0.05, 0.6) * scale))
-    if rng.integers(2) == 0:
-        return np.zeros((1, 3)), lambda dtype: jaxsat.sphere(np.asarray(radius, dtype))
+def point_or_segment_core(rng: np.random.Generator, scale: float, dim: int, radius: float,
+                          segment: bool):
+    """(raw core points, dtype -> shape) of a sphere (a circle in 2D), or with `segment` of a
+    capsule along local z (x in 2D) whose half length is up to `scale`, and 0 one time in ten."""
+    if not segment:
+        ball = jaxsat.sphere if dim == 3 else jaxsat.circle
+        return np.zeros((1, dim)), lambda dtype: ball(np.asarray(radius, dtype))
     half = float(f32(rng.uniform(0.0, 1.0) * scale)) if rng.uniform() > 0.1 else 0.0
-    ends = np.array([[0.0, 0.0, -half], [0.0, 0.0, half]])
-    return ends, lambda dtype: jaxsat.capsule(np.asarray(half, dtype), np.asarray(radius, dtype))
+    ends = np.zeros((2, dim))
+    ends[:, dim - 1 if dim == 3 else 0] = [-half, half]
+    return ends, lambda dtype: jaxsat.capsule(np.asarray(half, dtype),
+                                              np.asarray(radius, dtype), dim)
+
+
+def _sphere_or_capsule(rng: np.random.Generator, scale: float):
+    """A sphere or a capsule along local z (radius 0.05-0.6), either at random: raw points are
+    the core's (one point, or the segment's two ends)."""
+    radius = float(f32(rng.uniform(0.05, 0.6) * scale))
+    return point_or_segment_core(rng, scale, 3, radius, segment=rng.integers(2) != 0)
 
 
 def _rounded_or_sharp(rng: np.random.Generator, scale: float):
@@ -220,18 +230,13 @@ def _rounded_or_sharp(rng: np.random.Generator, scale: float):
 
 
 def _circle_capsule_or_polygon(rng: np.random.Generator, scale: float):
-    """2D: a circle, a capsule along local x (radius 0.05-0.6, half length up to 1, 0 one time
-    in ten), a rounded polygon or a sharp one (`_polygon8`), at random: stacked together they
-    are the rounded kind in the 8-vertex polygon class. Raw points are the core's."""
+    """2D: a circle, a capsule along local x (radius 0.05-0.6), a rounded polygon or a sharp
+    one (`_polygon8`), at random: stacked together they are the rounded kind in the 8-vertex
+    polygon class. Raw points are the core's."""
     radius = float(f32(rng.uniform(0.05, 0.6) * scale))
     kind = rng.integers(4)
-    if kind == 0:
-        return np.zeros((1, 2)), lambda dtype: jaxsat.circle(np.asarray(radius, dtype))
-    if kind == 1:
-        half = float(f32(rng.uniform(0.0, 1.0) * scale)) if rng.uniform() > 0.1 else 0.0
-        ends = np.array([[-half, 0.0], [half, 0.0]])
-        return ends, lambda dtype: jaxsat.capsule(np.asarray(half, dtype),
-                                                  np.asarray(radius, dtype), dim=2)
+    if kind < 2:
+        return point_or_segment_core(rng, scale, 2, radius, segment=kind == 1)
     points, polygon = _polygon8(rng, scale)
     if kind == 2:
         return points, polygon

@@ -48,20 +48,17 @@ class RoundedPool:
     radii: np.ndarray
 
 
+DEGENERATE_DIMS = {"sphere": 3, "capsule": 3, "circle": 2, "capsule2": 2}
+"""Kinds whose core is a point or a segment, and their dimension."""
+
+
 def _kind_shape(kind: str, rng: np.random.Generator, dtype):
     """(shape, core points) of one random shape of `kind`."""
     radius = float(rng.uniform(0.05, 0.6))
-    if kind in ("sphere", "circle"):
-        dim = 3 if kind == "sphere" else 2
-        make = jaxsat.sphere if dim == 3 else jaxsat.circle
-        return make(np.asarray(radius, dtype)), np.zeros((1, dim))
-    if kind in ("capsule", "capsule2"):
-        dim = 3 if kind == "capsule" else 2
-        half = harness.f32(rng.uniform(0.0, 1.0)) if rng.uniform() > 0.1 else 0.0
-        ends = np.zeros((2, dim))
-        ends[:, dim - 1 if dim == 3 else 0] = [-half, half]
-        shape = jaxsat.capsule(np.asarray(half, dtype), np.asarray(radius, dtype), dim)
-        return shape, ends
+    if kind in DEGENERATE_DIMS:
+        core, factory = harness.point_or_segment_core(rng, 1.0, DEGENERATE_DIMS[kind], radius,
+                                                      segment=kind.startswith("capsule"))
+        return factory(dtype), core
     base = {"rounded_box": "box", "box": "box", "rounded_hull": "hull8",
             "rounded_polygon": "poly8", "polygon": "poly8"}[kind]
     raw, factory = harness.GENERATORS[base][1](rng, 1.0)
