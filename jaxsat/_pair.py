@@ -136,7 +136,13 @@ EAGER_COMPILER_OPTIONS = {
 call 2-2.7x faster (box pair, exact distance: 2.5 -> 1.4 s on 2 cores) and a warm call stays
 well under a millisecond, except the smooth distance of two 20-vertex hulls (about 1 ms,
 0.4 ms with the default build). A user's own `jit` keeps its options: JAX takes compiler
-options only from the outermost jit."""
+options only from the outermost jit. CPU only: other backends reject these option names."""
+
+
+def eager_compiler_options(backend: str) -> dict | None:
+    """`EAGER_COMPILER_OPTIONS` on the CPU backend, None (XLA's defaults) on any other: a GPU
+    compiler fails on the CPU option names."""
+    return dict(EAGER_COMPILER_OPTIONS) if backend == "cpu" else None
 
 
 def compiled_query(check, static_argnames=()):
@@ -146,19 +152,25 @@ def compiled_query(check, static_argnames=()):
     option and then costs one dispatch; under a user's `jit`, `vmap` or `grad` the query is
     traced into theirs directly (a nested jit would be traced again by each transformation).
 
-    Eager calls compile with `EAGER_COMPILER_OPTIONS`: a query takes one pair, so its eager
+    Eager calls compile with `EAGER_COMPILER_OPTIONS` on the CPU (XLA's defaults elsewhere),
+    one jitted function per backend: a query takes one pair, so its eager
     program runs in under a millisecond either way and compiling is what the user waits for.
     (`tests/test_distance.py::test_eager_calls_agree_with_the_oracle_on_a_flat_gjk_stop` holds
     a box pair on which these settings once changed GJK's answer.)"""
     def wrap(function):
-        compiled = jax.jit(function, static_argnames=static_argnames,
-                           compiler_options=EAGER_COMPILER_OPTIONS)
+        compiled_on = {}  # backend name -> jitted function, built at the first eager call
 
         @functools.wraps(function)
         def query(*args, **kwargs):
             check(*args, **kwargs)
             if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
                 return function(*args, **kwargs)
+            backend = jax.default_backend()
+            compiled = compiled_on.get(backend)
+            if compiled is None:
+                compiled = compiled_on[backend] = jax.jit(
+                    function, static_argnames=static_argnames,
+                    compiler_options=eager_compiler_options(backend))
             return compiled(*args, **kwargs)
 
         query.uncompiled = function

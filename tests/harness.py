@@ -21,7 +21,7 @@ import pytest
 from scipy.spatial import ConvexHull
 
 import jaxsat
-from jaxsat._pair import EAGER_COMPILER_OPTIONS
+from jaxsat._pair import eager_compiler_options
 
 BATCH = 64
 """Every batched call uses this many pairs (the last chunk is padded), so nothing recompiles."""
@@ -38,13 +38,13 @@ NORMAL_TOLERANCE = {np.float64: 1e-7, np.float32: 1e-3}
 DTYPES = [np.float64, np.float32]
 DTYPE_IDS = ["float64", "float32"]
 
-FAST_COMPILE = EAGER_COMPILER_OPTIONS
-"""XLA's cheaper CPU settings (those of eager calls), for test kernels that batch many pairs
-with their derivatives (about half their compile time). Not what a user's own jit runs: the
-oracle tests of test_sat and test_distance, the scene tests and the benchmarks use the default
-build. These settings have produced NaN Hessian entries and, combined, a wrong GJK simplex
-where the default build did not, so a failure seen only under them is checked against the
-default build first."""
+FAST_COMPILE = eager_compiler_options(jax.default_backend())
+"""XLA's cheaper CPU settings (those of eager calls; None, XLA's defaults, on a GPU), for test
+kernels that batch many pairs with their derivatives (about half their compile time). Not what
+a user's own jit runs: the oracle tests of test_sat and test_distance, the scene tests and the
+benchmarks use the default build. These settings have produced NaN Hessian entries and,
+combined, a wrong GJK simplex where the default build did not, so a failure seen only under
+them is checked against the default build first."""
 
 
 # --------------------------------------------------------------------------------------------

@@ -16,6 +16,7 @@ import pytest
 import jaxsat
 from jaxsat._contacts import _closest_midpoint
 from jaxsat._kernels import materialize, segment_closest_parameters, where
+from jaxsat._pair import EAGER_COMPILER_OPTIONS, eager_compiler_options
 
 F32 = jnp.ones((3,), jnp.float32)
 I32 = jnp.arange(3, dtype=jnp.int32)
@@ -101,6 +102,8 @@ def test_materialize_computes_its_value_once(batched):
     assert sines == 12, sines
 
 
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="the copies are XLA CPU's fusion "
+                    "choice; XLA GPU computes the sines once without it (H100, jax 0.11.2)")
 def test_without_materialize_the_producer_is_copied_into_each_consumer():
     """The copies `materialize` prevents, so that the test above can fail."""
     compiled = jax.jit(lambda x: _expensive_then_four_consumers(x, lambda y: y))
@@ -196,3 +199,10 @@ def test_segment_closest_parameters_have_finite_gradients_at_any_scale():
     for scale in (1e-6, 1.0, 1e3):
         found = np.asarray(gradient(jnp.asarray(cases * scale, jnp.float32)))
         assert np.all(np.isfinite(found)), scale
+
+
+def test_eager_calls_take_the_cpu_options_only_on_the_cpu():
+    """XLA's GPU compiler rejects the CPU option names (`No such compile option`), which made
+    every eager query fail on an H100."""
+    assert eager_compiler_options("cpu") == EAGER_COMPILER_OPTIONS
+    assert eager_compiler_options("gpu") is None and eager_compiler_options("tpu") is None
