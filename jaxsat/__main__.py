@@ -47,20 +47,54 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--no-plot", action="store_true", help="do not draw the picture")
     bench = commands.add_parser(
         "bench", help="jaxsat against its peers (MJX, MuJoCo, Coal, jax2d, pymunk, ...)",
+        allow_abbrev=False,  # peers.py's --output must not be read as --output-dir
         description="Run the peers benchmark benchmarks/peers.py of this source checkout "
                     "(quick run by default) and print its table. Needs the peers: "
-                    "pip install -e \".[bench]\"; a missing peer is skipped with a note.",
+                    "pip install -e \".[bench]\"; a missing peer is skipped with a note. "
+                    "Result files (PREFIX.json and PREFIX.md) go to --output-dir, not to the "
+                    "checkout's benchmarks/results/: a full run always writes them, a quick "
+                    "run only when --output-dir is given.",
         epilog="Any other argument is passed on to benchmarks/peers.py, for example "
-               "--cases 3d-boxes --methods jaxsat mjx, or --list to see which peers are "
-               "installed; see python benchmarks/peers.py --help.")
+               "--cases 3d-boxes --methods jaxsat mjx, --output PREFIX for files of your "
+               "own naming (instead of --output-dir), --no-save to write no files, or --list "
+               "to see which peers are installed; see python benchmarks/peers.py --help.")
     bench.add_argument("--full", action="store_true",
                        help="the full run (sizes 1e3-1e5, about 15 minutes on 2 cores) "
                             "instead of --quick")
+    bench.add_argument("--output-dir", type=pathlib.Path, metavar="DIR",
+                       help="write the results to DIR/peers-full.json and .md (--full) or "
+                            "DIR/peers-quick.json and .md (created if missing; default: the "
+                            "current directory for --full, no files for a quick run)")
     return parser
 
 
-def run_bench(full: bool, extra: Sequence[str], script: pathlib.Path = PEERS_SCRIPT) -> int:
-    """Run benchmarks/peers.py in this process (with --quick unless `full`)."""
+def _gives_output(extra: Sequence[str]) -> bool:
+    return any(arg == "--output" or arg.startswith("--output=") for arg in extra)
+
+
+def bench_argv(full: bool, extra: Sequence[str], output_dir: pathlib.Path | None) -> list[str]:
+    """The arguments for benchmarks/peers.py: `extra`, --quick unless `full`, and --output
+    OUTPUT_DIR/peers-full (default directory: the current one) or, for a quick run given an
+    `output_dir`, OUTPUT_DIR/peers-quick, unless `extra` has its own --output. The prefix is
+    absolute, so peers.py never falls back to its default in the checkout (benchmarks/results/),
+    and a quick run without either writes nothing, as peers.py --quick does."""
+    quick = not full or "--quick" in extra
+    argv = list(extra) if full or "--quick" in extra else ["--quick", *extra]
+    if _gives_output(extra):
+        if output_dir is not None:
+            raise ValueError("give --output-dir DIR or peers.py's --output PREFIX, not both")
+        return argv  # the user's own prefix
+    if output_dir is not None or not quick:
+        directory = (output_dir or pathlib.Path.cwd()).expanduser().resolve()
+        argv += ["--output", str(directory / ("peers-quick" if quick else "peers-full"))]
+    return argv
+
+
+def run_bench(full: bool, extra: Sequence[str], script: pathlib.Path | None = None,
+              output_dir: pathlib.Path | None = None) -> int:
+    """Run benchmarks/peers.py (default: PEERS_SCRIPT) in this process with
+    bench_argv(full, extra, output_dir)."""
+    script = PEERS_SCRIPT if script is None else script
     if not script.is_file():
         print(f"error: {script} not found. `python -m jaxsat bench` runs the peers benchmark "
               "of a jaxsat source checkout: clone the repository and install it editable with "
@@ -71,8 +105,7 @@ def run_bench(full: bool, extra: Sequence[str], script: pathlib.Path = PEERS_SCR
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # its dataclasses look their module up there
     spec.loader.exec_module(module)
-    argv = list(extra) if full or "--quick" in extra else ["--quick", *extra]
-    return module.main(argv)
+    return module.main(bench_argv(full, extra, output_dir))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -95,7 +128,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                  output=None if args.no_plot else args.output)
         return 0
     if args.command == "bench":
-        return run_bench(args.full, extra)
+        if args.output_dir is not None and _gives_output(extra):
+            parser.error("bench: give --output-dir DIR or --output PREFIX, not both")
+        return run_bench(args.full, extra, output_dir=args.output_dir)
     parser.error(f"unknown command {args.command!r}")  # unreachable: argparse checks choices
     return 2
 

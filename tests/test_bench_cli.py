@@ -53,6 +53,59 @@ def test_bench_without_checkout_says_what_to_do(tmp_path, capsys):
     assert "not found" in error and 'pip install -e ".[bench]"' in error
 
 
+@pytest.fixture
+def fake_peers(tmp_path, monkeypatch):
+    """A stand-in for benchmarks/peers.py that records the arguments it is given and runs
+    nothing; returns the list of argument lists it received."""
+    script = tmp_path / "fake_peers.py"
+    script.write_text("RECEIVED = []\n\ndef main(argv):\n    RECEIVED.append(list(argv))\n"
+                      "    return 0\n")
+    monkeypatch.setattr("jaxsat.__main__.PEERS_SCRIPT", script)
+    monkeypatch.setitem(sys.modules, "jaxsat_bench_peers", None)  # removed again after
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+
+    def received():
+        return sys.modules["jaxsat_bench_peers"].RECEIVED
+
+    return received
+
+
+def _output_prefix(argv):
+    return pathlib.Path(argv[argv.index("--output") + 1]) if "--output" in argv else None
+
+
+@pytest.mark.parametrize("options, directory, name", [
+    (["--full"], ".", "peers-full"),                     # full run: the cwd by default
+    (["--full", "--output-dir", "out"], "out", "peers-full"),
+    (["--output-dir", "out/quick"], "out/quick", "peers-quick"),
+    (["--cases", "2d-small", "--output-dir", "out"], "out", "peers-quick"),
+])
+def test_bench_writes_under_the_output_directory(fake_peers, options, directory, name):
+    assert main(["bench", *options]) == 0
+    (argv,) = fake_peers()
+    assert ("--quick" in argv) == ("--full" not in options)
+    prefix = _output_prefix(argv)
+    assert prefix is not None and prefix.is_absolute()
+    assert prefix == pathlib.Path.cwd().resolve() / directory / name
+    assert not prefix.is_relative_to(BENCHMARKS)  # never benchmarks/results/ of the checkout
+
+
+def test_quick_bench_writes_nothing_unless_asked(fake_peers):
+    assert main(["bench", "--cases", "2d-small"]) == 0
+    assert fake_peers() == [["--quick", "--cases", "2d-small"]]
+
+
+def test_bench_passes_the_users_own_prefix_on(fake_peers, capsys):
+    assert main(["bench", "--full", "--output", "mine/run"]) == 0
+    assert fake_peers() == [["--output", "mine/run"]]  # as given: peers.py resolves it
+    with pytest.raises(SystemExit) as exit_:
+        main(["bench", "--output-dir", "out", "--output", "mine/run"])
+    assert exit_.value.code == 2
+    assert "not both" in capsys.readouterr().err
+
+
 def test_other_commands_still_reject_unknown_arguments(capsys):
     with pytest.raises(SystemExit) as exit_:
         main(["demo", "--no-such-option"])
