@@ -190,15 +190,23 @@ def broad_phase(low: jax.Array, high: jax.Array, *, capacity: int,
     Returns:
       CandidatePairs. `overflow` > 0 means some pairs are missing: raise `capacity` (or
       `candidate_capacity`). The grid cell is the largest AABB's size, so one huge shape
-      makes the grid coarse; give such shapes (floors, walls) their own query.
+      makes the grid coarse; give such shapes (floors, walls) their own query. A box with a
+      NaN or infinite corner pairs with nothing, and the other boxes pair as they would
+      without it.
     """
     low, high = jnp.asarray(low), jnp.asarray(high)
     _check_broad_phase(low, high, capacity, candidate_capacity, groups, masks, body_ids)
     if candidate_capacity is None:
         candidate_capacity = 8 * capacity + 16 * low.shape[0]
+    # A NaN corner would make the grid's cell size and origin NaN and send every box into one
+    # cell: such boxes become points on a finite box's corner, which leave the grid as it is.
+    finite = jnp.all(jnp.isfinite(low) & jnp.isfinite(high), axis=-1)
+    anchor = low[jnp.argmax(finite)]
+    anchor = where(jnp.all(jnp.isfinite(anchor)), anchor, jnp.zeros_like(anchor))
+    low, high = (where(finite[:, None], corner, anchor) for corner in (low, high))
     i, j, real, total = _enumerate(low, high, candidate_capacity)
     overlap = jnp.all((low[i] <= high[j]) & (low[j] <= high[i]), axis=-1)
-    keep = real & overlap & _pair_filter(i, j, groups, masks, body_ids)
+    keep = real & overlap & finite[i] & finite[j] & _pair_filter(i, j, groups, masks, body_ids)
     pairs = jnp.stack([jnp.minimum(i, j), jnp.maximum(i, j)], axis=-1)
     count = jnp.sum(keep, dtype=jnp.int32)
     unexamined = jnp.maximum(total - candidate_capacity, 0)

@@ -180,6 +180,7 @@ def concave_polygon(vertices, max_pieces: int | None = None, max_vertices: int |
       vertices: (N, 2) array-like of the polygon's vertices, in either winding order.
       max_pieces, max_vertices: padding, as in `compound`.
       dtype: float dtype of the result; default: the input's float dtype, else JAX's default.
+        An explicit float64 needs 64-bit JAX (`jax_enable_x64`): ValueError otherwise.
 
     Raises:
       ValueError: everything `decompose` rejects, and too many pieces or piece vertices for

@@ -54,9 +54,11 @@ __all__ = [
     "cross2",
     "dot",
     "extremes",
+    "explicit_float_dtype",
     "materialize",
     "orthonormal_basis",
     "project",
+    "propagate_non_finite",
     "rotate",
     "safe_divide",
     "safe_normalize",
@@ -79,6 +81,23 @@ __all__ = [
 ]
 
 
+def explicit_float_dtype(dtype) -> jnp.dtype:
+    """A float dtype a caller asked for by name, as JAX will store it.
+
+    Raises ValueError for a non-float dtype, and for float64 while 64-bit JAX is off: JAX
+    would silently store float32, and the caller would get half the precision they asked
+    for."""
+    requested = jnp.dtype(dtype)
+    if not jnp.issubdtype(requested, jnp.floating):
+        raise ValueError(f"dtype must be a floating dtype, got {requested}")
+    stored = jax.dtypes.canonicalize_dtype(requested)
+    if stored != requested:
+        raise ValueError(f"dtype {requested} needs 64-bit JAX, which is off (JAX would store "
+                         f"{stored}): call jax.config.update('jax_enable_x64', True) first, or "
+                         "set JAX_ENABLE_X64=1")
+    return stored
+
+
 def where(condition, x, y):
     """jnp.where(condition, x, y) as one `lax.select` (rule 6), with jnp.where's dtype and
     broadcasting rules: a Python scalar takes the other operand's dtype, and two Python
@@ -88,6 +107,51 @@ def where(condition, x, y):
         dtype = jnp.result_type(x, y)
         x, y = x.astype(dtype), y.astype(dtype)
     return jax.lax.select(*jnp.broadcast_arrays(condition, x, y))
+
+
+def propagate_non_finite(outputs, inputs):
+    """`outputs` with every float leaf NaN and every bool leaf False where some float entry of
+    `inputs` is NaN or inf, and NaN derivatives with respect to every input entry there;
+    exactly `outputs` (values and derivatives) where all inputs are finite.
+
+    Prevents a plausible answer from non-finite input. Queries choose among candidates by
+    comparisons, and a comparison with NaN is False, so a NaN pose or vertex loses every
+    choice and leaves a finite, wrong value: a NaN quaternion gave a distance of 0.5 with a
+    zero gradient. The guard adds p + stop_gradient(p) * sum(tiny * x) to float outputs, where
+    p = sum(0 * x) over every input entry x is 0, or NaN as soon as one entry is NaN or inf
+    (0 * inf is NaN); no finite input can overflow either sum. Its derivative with respect to
+    each entry is tiny * p: 0, or NaN. Written entry by entry (rule 2: a reduction would be a
+    pass of its own over the inputs) and stored once (rule 5), it costs the SAT 10-16% on
+    2D polygons and boxes, against 30-120% as a reduction per input."""
+    floats = [leaf for leaf in map(jnp.asarray, jax.tree.leaves(inputs))
+              if jnp.issubdtype(leaf.dtype, jnp.floating)]
+    if not floats:
+        return outputs
+    poison = _non_finite_poison(*floats)
+    finite = ~jnp.isnan(poison)
+
+    def guard(leaf):
+        leaf = jnp.asarray(leaf)
+        if jnp.issubdtype(leaf.dtype, jnp.floating):
+            return leaf + poison.astype(leaf.dtype)
+        if leaf.dtype == jnp.bool_:
+            return leaf & finite
+        return leaf
+
+    return jax.tree.map(guard, outputs)
+
+
+@jax.jit
+def _non_finite_poison(*floats):
+    """The guard of `propagate_non_finite`: one jitted call, so that an eager gradient (which
+    runs a query op by op) dispatches it once rather than four operations per input entry."""
+    entries = [entry for leaf in floats for entry in leaf.reshape(-1)]
+    with jax.numpy_dtype_promotion("standard"):  # a float64 smoothing with float32 shapes
+        dtype = jnp.result_type(*entries)
+    entries = [entry.astype(dtype) for entry in entries]
+    nan_if_non_finite = sum(entry * jnp.zeros((), dtype) for entry in entries)
+    return materialize(nan_if_non_finite + jax.lax.stop_gradient(nan_if_non_finite) * sum(
+        entry * jnp.finfo(dtype).tiny for entry in entries))
 
 
 def project(axes, points):

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 
 import jax
 import jax.numpy as jnp
+from jax.experimental import checkify
 
-from jaxsat._kernels import project, rotate
+from jaxsat._kernels import project, propagate_non_finite, rotate
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
@@ -145,12 +147,45 @@ def eager_compiler_options(backend: str) -> dict | None:
     return dict(EAGER_COMPILER_OPTIONS) if backend == "cpu" else None
 
 
-def compiled_query(check, static_argnames=()):
+_CHECKED_FIELDS = ("pieces", "vertices", "radius", "translation", "rotation", "normal", "offset")
+"""The fields of an input that the non-finite guard reads: a shape's vertices and radius (its
+face normals and other derived fields follow from them), a pose, a half-space's plane, and a
+compound's pieces."""
+
+
+def _checked_leaves(value) -> list:
+    """The float arrays of one query argument that must be finite (see `_CHECKED_FIELDS`)."""
+    if dataclasses.is_dataclass(value):
+        return [leaf for field in _CHECKED_FIELDS if getattr(value, field, None) is not None
+                for leaf in _checked_leaves(getattr(value, field))]
+    leaves = [jnp.asarray(leaf) for leaf in jax.tree.leaves(value)]
+    return [leaf for leaf in leaves if jnp.issubdtype(leaf.dtype, jnp.floating)]
+
+
+def guard_non_finite(name: str, signature: inspect.Signature, function, args, kwargs):
+    """`function(*args, **kwargs)` with NaN float outputs (and NaN derivatives, and False
+    boolean outputs) where a pose, vertex, radius, plane or scalar argument is NaN or inf
+    (`propagate_non_finite`). Under `jax.experimental.checkify.checkify`, such an argument
+    raises an error naming it; elsewhere the checks cost nothing (`checkify.debug_check`)."""
+    bound = signature.bind(*args, **kwargs)
+    inputs = []
+    for argument, value in bound.arguments.items():
+        leaves = _checked_leaves(value)
+        if leaves:
+            finite = functools.reduce(jnp.logical_and, [jnp.all(jnp.isfinite(x)) for x in leaves])
+            checkify.debug_check(finite, f"jaxsat.{name}: argument '{argument}' holds NaN or inf")
+            inputs.extend(leaves)
+    return propagate_non_finite(function(*args, **kwargs), inputs)
+
+
+def compiled_query(check, static_argnames=(), name=None):
     """Decorator for a public pair query: the static checks `check(*args, **kwargs)` run in
     Python first (so bad input raises a clear error, never a tracing failure), then the query
     runs through `jax.jit`. An eager call compiles once per size class, dtype and static
     option and then costs one dispatch; under a user's `jit`, `vmap` or `grad` the query is
     traced into theirs directly (a nested jit would be traced again by each transformation).
+    Either way the outputs pass through `guard_non_finite` (under `name`, default the
+    function's): non-finite input gives NaN, never a plausible number.
 
     Eager calls compile with `EAGER_COMPILER_OPTIONS` on the CPU (XLA's defaults elsewhere),
     one jitted function per backend: a query takes one pair, so its eager
@@ -159,17 +194,22 @@ def compiled_query(check, static_argnames=()):
     a box pair on which these settings once changed GJK's answer.)"""
     def wrap(function):
         compiled_on = {}  # backend name -> jitted function, built at the first eager call
+        signature = inspect.signature(function)
+
+        @functools.wraps(function)  # keeps the signature, for jit's static_argnames
+        def guarded(*args, **kwargs):
+            return guard_non_finite(name or function.__name__, signature, function, args, kwargs)
 
         @functools.wraps(function)
         def query(*args, **kwargs):
             check(*args, **kwargs)
             if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
-                return function(*args, **kwargs)
+                return guarded(*args, **kwargs)
             backend = jax.default_backend()
             compiled = compiled_on.get(backend)
             if compiled is None:
                 compiled = compiled_on[backend] = jax.jit(
-                    function, static_argnames=static_argnames,
+                    guarded, static_argnames=static_argnames,
                     compiler_options=eager_compiler_options(backend))
             return compiled(*args, **kwargs)
 

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsat._kernels import where
+from jaxsat._kernels import explicit_float_dtype, where
 
 __all__ = ["Pose", "pose2", "pose3"]
 
@@ -42,7 +42,8 @@ class Pose:
         """The identity pose in `dim` = 2 or 3 dimensions."""
         if dim not in (2, 3):
             raise ValueError(f"dim must be 2 or 3, got {dim!r}")
-        dtype = jax.dtypes.canonicalize_dtype(float if dtype is None else dtype)
+        dtype = (jax.dtypes.canonicalize_dtype(float) if dtype is None
+                 else explicit_float_dtype(dtype))
         return cls(jnp.zeros(dim, dtype), jnp.eye(dim, dtype=dtype))
 
     def apply(self, points: jax.Array) -> jax.Array:
@@ -89,14 +90,16 @@ def pose3(translation, quaternion_wxyz) -> Pose:
     """A 3D pose from a translation and a rotation quaternion (w, x, y, z).
 
     The quaternion need not be normalised; it is divided by its norm (a zero quaternion gives
-    the identity rotation, with finite gradients).
+    the identity rotation, with finite gradients). A NaN or infinite entry gives a NaN
+    rotation, which every query turns into NaN outputs.
     """
     translation, quaternion = _as_float(translation, quaternion_wxyz)
     if translation.shape != (3,) or quaternion.shape != (4,):
         raise ValueError("pose3 needs translation (3,) and quaternion_wxyz (4,), got "
                          f"{translation.shape} and {quaternion.shape}")
     squared_norm = jnp.sum(quaternion**2)
-    nonzero = squared_norm > jnp.finfo(quaternion.dtype).tiny
+    # Written so that NaN counts as nonzero: a NaN quaternion must not become the identity.
+    nonzero = ~(squared_norm <= jnp.finfo(quaternion.dtype).tiny)
     # Double `where`: the untaken branch must not divide by zero, or its gradient is NaN.
     safe = where(nonzero, quaternion, jnp.array([1, 0, 0, 0], quaternion.dtype))
     w, x, y, z = safe / jnp.sqrt(jnp.sum(safe**2))

@@ -75,7 +75,7 @@ class ClosestPoints:
     """(D,) float: unit world axis from a towards b (the penetration normal when overlapping)."""
 
 
-@compiled_query(check_pair)
+@compiled_query(check_pair, name="signed_distance")
 def _exact_signed_distance(a, pose_a, b, pose_b) -> jax.Array:
     if is_plane_pair(a, b):
         return plane_query(a, pose_a, b, pose_b).signed_distance
@@ -90,12 +90,13 @@ def _exact_value(frame: PairFrame):
     return (core - frame.radius_a - frame.radius_b if frame.is_rounded else core), found
 
 
-@compiled_query(lambda a, pose_a, b, pose_b, tau: check_pair(a, pose_a, b, pose_b))
-def _smooth_signed_distance(a, pose_a, b, pose_b, tau) -> jax.Array:
+@compiled_query(lambda a, pose_a, b, pose_b, smoothing: check_pair(a, pose_a, b, pose_b),
+                name="signed_distance")
+def _smooth_signed_distance(a, pose_a, b, pose_b, smoothing) -> jax.Array:
     if is_plane_pair(a, b):
-        return plane_query(a, pose_a, b, pose_b, tau).signed_distance
+        return plane_query(a, pose_a, b, pose_b, smoothing).signed_distance
     frame = pair_frame(a, pose_a, b, pose_b)
-    core = smooth_signed_distance(frame, jnp.asarray(tau, frame.dtype))
+    core = smooth_signed_distance(frame, jnp.asarray(smoothing, frame.dtype))
     return core - frame.radius_a - frame.radius_b if frame.is_rounded else core
 
 

@@ -72,6 +72,12 @@ class SceneCollisions:
     """() int32: number of broad-phase pairs, including any that did not fit."""
     overflow: jax.Array
     """() int32: broad-phase pairs that did not fit in `capacity`; 0 means nothing was missed."""
+    non_finite: jax.Array
+    """(N,) bool: shape i has a NaN or infinite pose, vertex or radius. It is in no pair slot
+    (its results would be NaN), the other shapes pair as they would without it, and its rows
+    of `planes` are NaN (not colliding)."""
+    non_finite_count: jax.Array
+    """() int32: how many shapes are `non_finite`; 0 means every shape took part."""
     planes: PlaneCollisions | None = None
     """Every shape against every half-space; None when `collide` was given none."""
 
@@ -187,7 +193,18 @@ def collide(shapes: Polytope, poses: Pose, *, capacity: int, level: str = "penet
     else:
         hit, contact_set = (result, None) if level == "penetration" else result
         depth, normal, touching = hit.depth, hit.normal, hit.depth >= 0
+    non_finite = _non_finite_shapes(shapes, poses)
     return SceneCollisions(pairs=candidates.pairs, valid=candidates.valid,
                            colliding=candidates.valid & touching, depth=depth, normal=normal,
                            contacts=contact_set, count=candidates.count,
-                           overflow=candidates.overflow, planes=plane_result)
+                           overflow=candidates.overflow, non_finite=non_finite,
+                           non_finite_count=jnp.sum(non_finite, dtype=jnp.int32),
+                           planes=plane_result)
+
+
+def _non_finite_shapes(shapes: Polytope, poses: Pose) -> jax.Array:
+    """(N,) bool: a NaN or inf in shape i's vertices, radius, translation or rotation."""
+    leaves = [shapes.vertices, poses.translation, poses.rotation]
+    leaves += [] if shapes.radius is None else [shapes.radius]
+    finite = [jnp.all(jnp.isfinite(leaf).reshape(leaf.shape[0], -1), axis=1) for leaf in leaves]
+    return ~functools.reduce(jnp.logical_and, finite)

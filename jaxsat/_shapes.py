@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsat import _geometry as geometry
-from jaxsat._kernels import where
+from jaxsat._kernels import explicit_float_dtype, where
 
 __all__ = ["CappedHull", "Polytope", "SizeClass", "box", "cap_hull", "capsule", "circle",
            "float_dtype", "moved", "pad_and_stack", "polygon", "polyhedron", "regular_polygon",
@@ -146,14 +146,14 @@ def ring_neighbours(index, count):
 
 
 def float_dtype(source: np.ndarray | None, dtype) -> jnp.dtype:
-    """The JAX dtype a constructor stores: `dtype`, else the input's float dtype, else default."""
-    if dtype is None:
-        is_float = source is not None and np.issubdtype(source.dtype, np.floating)
-        dtype = source.dtype if is_float else float
-    dtype = jnp.dtype(dtype)
-    if not jnp.issubdtype(dtype, jnp.floating):
-        raise ValueError(f"dtype must be a floating dtype, got {dtype}")
-    return jax.dtypes.canonicalize_dtype(dtype)
+    """The JAX dtype a constructor stores: `dtype`, else the input's float dtype, else default.
+
+    An input's float64 becomes float32 while 64-bit JAX is off, as for any JAX array; an
+    explicit dtype=float64 then raises ValueError (`explicit_float_dtype`)."""
+    if dtype is not None:
+        return explicit_float_dtype(dtype)
+    is_float = source is not None and np.issubdtype(source.dtype, np.floating)
+    return jax.dtypes.canonicalize_dtype(source.dtype if is_float else float)
 
 
 def _pad_rows(rows: np.ndarray, size: int, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -223,6 +223,7 @@ def polygon(vertices, max_vertices: int | None = None, *, dtype=None,
       max_vertices: pad to this many vertices (and face normals) so that polygons of different
         vertex counts share one compiled kernel. Default: no padding.
       dtype: float dtype of the result; default: the input's float dtype, else JAX's default.
+        An explicit float64 needs 64-bit JAX (`jax_enable_x64`): ValueError otherwise.
       unique_axes: keep one face normal per direction (a rectangle tests 2 axes, not 4).
         False keeps one per edge, as a textbook SAT does: the same answers, more work.
 
@@ -252,6 +253,7 @@ def polyhedron(points, max_vertices: int | None = None, *, dtype=None,
         polyhedron with that many vertices can have (2V - 4 faces, 3V - 6 edges), so that every
         hull of the size class shares one compiled kernel. Default: no padding.
       dtype: float dtype of the result; default: the input's float dtype, else JAX's default.
+        An explicit float64 needs 64-bit JAX (`jax_enable_x64`): ValueError otherwise.
       unique_axes: keep face normals and edge directions unique up to sign (a box: 3 and 3).
         False keeps one per face and one per edge (a box: 6 and 12), as a textbook SAT does:
         the same answers, more work (see benchmarks/scene.py).

@@ -22,6 +22,7 @@ jitted function, shared by every property: value and pose gradients of a batch o
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import chex
@@ -47,6 +48,8 @@ from harness import (
     run_batched,
     take,
 )
+
+import jaxsat
 
 DIFFERENTIABLE = {name for name in QUERIES if name != "intersects"}
 """Queries with float outputs, whose pose gradients are checked."""
@@ -235,3 +238,55 @@ def test_a_common_rigid_motion_moves_points_and_normals_and_keeps_values(query, 
                                   - expected[i][out.valid[i]][None], axis=-1)
             np.testing.assert_array_less(np.min(gaps, axis=1), 10 * tol[i])
             np.testing.assert_array_less(np.min(gaps, axis=0), 10 * tol[i])
+
+
+def _poison(shape, i: int, bad: float):
+    """shape (batched) with entry i's plane offset (a half-space) or first vertex coordinate
+    set to `bad`."""
+    if isinstance(shape, jaxsat.HalfSpace):
+        offset = np.array(shape.offset)
+        offset[i] = bad
+        return dataclasses.replace(shape, offset=offset)
+    vertices = np.array(shape.vertices)
+    vertices[i, 0, 0] = bad
+    return dataclasses.replace(shape, vertices=vertices)
+
+
+NON_FINITE_SPOTS = ("translation of a", "rotation of b", "vertex or plane of a",
+                    "vertex or plane of b", "radius of b")
+
+
+@every_query_class_dtype
+def test_non_finite_inputs_give_nan_values_and_gradients(query, size_class, dtype):
+    """A NaN, inf or -inf in one place of a pair's input (each of `NON_FINITE_SPOTS` in turn:
+    a translation, a rotation parameter, a vertex or plane, a radius) makes every float
+    output and every pose gradient of that pair NaN, and every boolean output False; the
+    other pairs of the batch keep their finite answers."""
+    pairs = random_pairs(*pools(size_class, dtype), BATCH, np.random.default_rng(6), dtype)
+    a, params_a, b, params_b = jax.tree.map(np.array, pairs.inputs())
+    poisoned = np.arange(BATCH) % 4 != 3  # every fourth pair stays finite
+    for i in np.nonzero(poisoned)[0]:
+        bad, spot = (np.nan, np.inf, -np.inf)[i % 3], NON_FINITE_SPOTS[i % len(NON_FINITE_SPOTS)]
+        if spot == "translation of a":
+            params_a[0][i, ...] = bad
+        elif spot == "rotation of b":
+            params_b[-1][i, ...] = bad
+        elif spot == "vertex or plane of a":
+            a = _poison(a, i, bad)
+        elif b.radius is not None and spot == "radius of b":
+            radius = np.array(b.radius)
+            radius[i] = bad
+            b = dataclasses.replace(b, radius=radius)
+        else:
+            b = _poison(b, i, bad)
+    out, grads = run_batched(batched(query), BATCH, a, params_a, b, params_b)
+    for leaf in jax.tree.leaves(out):
+        if np.issubdtype(leaf.dtype, np.floating):
+            assert np.all(np.isnan(leaf[poisoned])), leaf[poisoned]
+            assert np.all(np.isfinite(leaf[~poisoned]))
+        elif leaf.dtype == bool:
+            assert not np.any(leaf[poisoned])
+    if query in DIFFERENTIABLE:
+        for leaf in jax.tree.leaves(grads):
+            assert np.all(np.isnan(leaf[poisoned])), leaf[poisoned]
+            assert np.all(np.isfinite(leaf[~poisoned]))
