@@ -128,6 +128,11 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     by_length = use_witness & (sat.depth < 0) & converged
     distance = k.where(by_length, jnp.maximum(witness_gap, length),
                          k.where(use_witness, witness_gap, sat_gap))
+    # One truth at contact: the sign follows the SAT (overlap iff its depth >= 0, as
+    # `intersects`, `penetration` and `contacts` decide). This moves the value by rounding
+    # only: apart, the SAT gap is a lower bound on the distance; overlapping, it is -depth.
+    distance = k.where(sat.depth >= 0, jnp.minimum(distance, 0.0),
+                       jnp.maximum(distance, sat_gap))
     return ExactDistance(distance=distance,
                          axis=k.where(use_witness, witness_axis, sat.axis),
                          index_a=simplex.index_a, index_b=simplex.index_b,

@@ -35,7 +35,7 @@ from jaxsat._pair import PairFrame
 from jaxsat._shapes import Polytope
 
 __all__ = ["EDGE_PAIR", "FACE_OF_A", "FACE_OF_B", "Candidates", "GaussMapAxes", "ProjectedAxes",
-           "SatAxis", "candidates", "min_candidate_depth", "sat_runner_up", "sat_search"]
+           "SatAxis", "candidates", "sat_runner_up", "sat_search"]
 
 
 class ProjectedAxes(NamedTuple):
@@ -372,13 +372,3 @@ def _support(axis, points):
     weights no longer summed to 1 (a depth gradient of norm 1.4 for a box pair)."""
     projections = sum(axis[k] * points[:, k] for k in range(points.shape[-1]))
     return projections[jnp.argmax(projections)]
-
-
-def min_candidate_depth(frame: PairFrame) -> jax.Array:
-    """() float: the smallest depth over every candidate of a prepared pair, as each group
-    measures it (>= 0 iff no candidate separates the shapes)."""
-    found = candidates(frame)
-    smallest = jnp.min(found.projected.depths)
-    if found.gauss_map is None:
-        return smallest
-    return jnp.minimum(smallest, jnp.min(found.gauss_map.row_minima()))

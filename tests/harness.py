@@ -1138,3 +1138,74 @@ def every_query_class_dtype(test):
                           else pytest.mark.slow)
              for query in QUERIES for size_class in PROPERTY_CLASSES for dtype in DTYPES]
     return pytest.mark.parametrize(("query", "size_class", "dtype"), cases)(test)
+
+
+# --------------------------------------------------------------------------------------------
+# Shapes touching exactly, in integer coordinates: where the queries must agree.
+# --------------------------------------------------------------------------------------------
+
+_CUBE2 = np.array([[x, y, z] for x in (0, 2) for y in (0, 2) for z in (0, 2)])
+_RIDGE_X = np.array([[-1, 0, 0], [1, 0, 0], [0, 1, -1], [0, -1, -1]])
+"""A tetrahedron below z = 0 whose top edge runs along x through the origin."""
+
+TOUCHING = {
+    3: {
+        # b is a's point reflection through a's vertex 0: they share that vertex only.
+        "vertex-vertex": (np.array([[0, 0, 0], [2, 1, 0], [1, 2, 1], [0, 1, 2]]), None),
+        "vertex-edge": (_RIDGE_X, np.array([[0, 0, 0], [1, 1, 1], [-1, 1, 1], [0, -1, 1]])),
+        "edge-edge": (_RIDGE_X, np.array([[0, -1, 0], [0, 1, 0], [1, 0, 1], [-1, 0, 1]])),
+        "vertex-face": (_CUBE2, np.array([[1, 1, 2], [0, 0, 3], [2, 0, 3], [1, 2, 3]])),
+        "edge-face": (_CUBE2, np.array([[0, 1, 2], [2, 1, 2], [1, 0, 3], [1, 2, 3]])),
+        "face-face": (_CUBE2, np.array([[1, 1, 2], [3, 1, 2], [1, 3, 2], [1, 1, 3]])),
+    },
+    2: {
+        "vertex-vertex": (np.array([[0, 0], [2, 1], [1, 2]]), None),
+        "vertex-edge": (np.array([[0, 0], [2, 0], [2, 2], [0, 2]]),
+                        np.array([[1, 2], [2, 3], [0, 3]])),
+        "edge-edge": (np.array([[0, 0], [2, 0], [2, 2], [0, 2]]),
+                      np.array([[1, 2], [3, 2], [3, 4], [1, 4]])),
+        "edge-edge-full": (np.array([[0, 0], [2, 0], [2, 2], [0, 2]]),
+                           np.array([[2, 0], [4, 0], [4, 2], [2, 2]])),
+    },
+}
+"""Pairs of convex shapes (vertex rows, a then b) that touch exactly in their own frame,
+named by the touching features; b = None means a's point reflection through a's vertex 0."""
+
+TOUCHING_SCALES = (1e-3, 1.0, 1e3)
+
+
+def touching_pairs(dim: int, dtype, motions: int = 5, seed: int = 0):
+    """Every `TOUCHING` configuration at every scale of `TOUCHING_SCALES`, as placed (both
+    shapes at the identity pose) and under `motions` random common rigid motions (touching
+    up to the rounding of the poses), each also with b moved by +-4 ulps of the scale along a
+    random direction. Returns (names, a, params_a, b, params_b): names (N,) and the batched
+    inputs of a (Polytope stack, pose parameters) and b, in `dtype`."""
+    rng = np.random.default_rng(seed)
+    names, shapes_a, shapes_b, params_a, params_b = [], [], [], [], []
+    ulp = float(np.finfo(dtype).eps)
+    for name, (rows_a, rows_b) in TOUCHING[dim].items():
+        rows_a = np.asarray(rows_a, np.float64)
+        rows_b = 2 * rows_a[0] - rows_a if rows_b is None else np.asarray(rows_b, np.float64)
+        for scale in TOUCHING_SCALES:
+            build = jaxsat.polygon if dim == 2 else jaxsat.polyhedron
+            a, b = (build((rows * scale).astype(dtype), max_vertices=8, dtype=dtype)
+                    for rows in (rows_a, rows_b))
+            turns, shifts = random_motion(dim, motions, rng, scale)
+            turns = np.concatenate([[0.0] if dim == 2 else [IDENTITY], turns])
+            shifts = np.concatenate([np.zeros((1, dim)), shifts])
+            for turn, shift in zip(turns, shifts, strict=True):
+                for nudge in (0.0, 4.0, -4.0):
+                    direction = rng.normal(size=dim)
+                    moved = shift + nudge * ulp * scale * direction / np.linalg.norm(direction)
+                    names.append(name)
+                    shapes_a.append(a)
+                    shapes_b.append(b)
+                    # 2D: (x, y, angle); 3D: translation then quaternion.
+                    params_a.append(_pose(shift, np.atleast_1d(turn)))
+                    params_b.append(_pose(moved, np.atleast_1d(turn)))
+    params_a, params_b = np.asarray(params_a), np.asarray(params_b)
+    split = (lambda p: (p[:, 0], p[:, 1], p[:, 2])) if dim == 2 else \
+        (lambda p: (p[:, :3], p[:, 3:]))
+    cast = lambda parts: tuple(np.asarray(part, dtype) for part in parts)  # noqa: E731
+    return (np.array(names), jaxsat.stack(shapes_a), cast(split(params_a)),
+            jaxsat.stack(shapes_b), cast(split(params_b)))
