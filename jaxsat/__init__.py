@@ -31,6 +31,7 @@ from jaxsat._queries import signed_distance as signed_distance
 from jaxsat._scene import PlaneCollisions as PlaneCollisions
 from jaxsat._scene import SceneCollisions as SceneCollisions
 from jaxsat._scene import collide as collide
+from jaxsat._scene import collide_capacity as collide_capacity
 from jaxsat._shapes import CappedHull as CappedHull
 from jaxsat._shapes import Polytope as Polytope
 from jaxsat._shapes import box as box
@@ -68,6 +69,7 @@ __all__ = [
     "circle",
     "closest_points",
     "collide",
+    "collide_capacity",
     "compound",
     "compound_intersects",
     "compound_penetration",

@@ -70,7 +70,7 @@ from jaxsat._queries import check_pair
 from jaxsat._sat import sat_search
 from jaxsat._shapes import Polytope
 
-__all__ = ["Contacts", "contacts"]
+__all__ = ["Contacts", "check_margin", "contacts"]
 
 _FACE_ANGLE = 0.02
 """3D: a face whose normal is within this angle (radians, as the chord |N - n|) of the contact
@@ -161,7 +161,7 @@ class _Candidates(NamedTuple):
 
 def _check_contacts(a, pose_a, b, pose_b, *, margin=0.0) -> None:
     check_pair(a, pose_a, b, pose_b)
-    _check_margin(margin)
+    check_margin(margin)
 
 
 @compiled_query(_check_contacts)
@@ -221,7 +221,8 @@ def contacts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
     return _manifold(a, pose_a, b, pose_b, margin)[0]
 
 
-def _check_margin(margin) -> None:
+def check_margin(margin) -> None:
+    """TypeError unless a number, ValueError unless finite and >= 0 (a traced margin passes)."""
     if isinstance(margin, jax.core.Tracer):
         return  # traced margins are the caller's business
     try:
@@ -253,7 +254,7 @@ class _Frame(NamedTuple):
 
 def _manifold(a, pose_a: Pose, b, pose_b: Pose, margin=0.0) -> tuple[Contacts, _Details]:
     """`contacts` plus the faces it used (see `_Details`)."""
-    _check_margin(margin)
+    check_margin(margin)
     if is_plane_pair(a, b):
         return _plane_manifold(a, pose_a, b, pose_b, margin)
     pair = pair_frame(a, pose_a, b, pose_b)

@@ -23,10 +23,12 @@ from jaxsat._halfspace import HalfSpace
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
-__all__ = ["PlaneCollisions", "SceneCollisions", "collide"]
+__all__ = ["PlaneCollisions", "SceneCollisions", "collide", "collide_capacity"]
 
-LEVELS = ("intersects", "penetration", "contacts")
-"""Levels of work, cheapest first; each one skips the work of the next."""
+LEVELS = ("intersects", "penetration", "distance", "contacts")
+"""Levels of work: a yes/no answer, the SAT's depth and normal, the exact (or smooth) signed
+distance with witness points, contact manifolds. Each of the first two skips the work of the
+others."""
 
 
 @jax.tree_util.register_dataclass
@@ -45,6 +47,14 @@ class PlaneCollisions:
     outward normal); None at level "intersects"."""
     contacts: _contacts.Contacts | None
     """Contacts with leading (N, P) axes; None below level "contacts"."""
+    near: jax.Array
+    """(N, P) bool: within `margin` of the half-space (as `SceneCollisions.near`)."""
+    signed_distance: jax.Array | None = None
+    """(N, P) float: signed distance (exact, or smooth with `smoothing`); level "distance"
+    only."""
+    witness_points: jax.Array | None = None
+    """(N, P, 2, D) float: the closest points of the shape and of the half-space (when
+    overlapping, the deepest pair); level "distance" only."""
 
 
 @jax.tree_util.register_dataclass
@@ -62,12 +72,23 @@ class SceneCollisions:
     colliding: jax.Array
     """(C,) bool: valid, and the two shapes overlap or touch."""
     depth: jax.Array | None
-    """(C,) float: penetration depth of each pair (see `penetration`); None at level
-    "intersects"."""
+    """(C,) float: penetration depth of each pair (see `penetration`; at level "distance",
+    minus the exact signed distance); None at level "intersects"."""
     normal: jax.Array | None
     """(C, D) float: unit normal from shape i towards shape j; None at level "intersects"."""
     contacts: _contacts.Contacts | None
     """Contacts with a leading (C,) axis; None below level "contacts"."""
+    near: jax.Array
+    """(C,) bool: valid, and the pair is within `margin` (colliding when margin = 0). Level
+    "distance": signed distance <= margin, exactly. "contacts": a valid contact point (depth
+    >= -margin). "penetration": depth >= -margin, where -depth is the largest SAT gap, at most
+    the distance: every pair within margin, and possibly a few slightly beyond it."""
+    signed_distance: jax.Array | None
+    """(C,) float: signed distance of each pair, exact (`closest_points`) or with
+    `smoothing` the smooth one (`signed_distance(..., smoothing=)`); level "distance" only."""
+    witness_points: jax.Array | None
+    """(C, 2, D) float: the exact closest points of shape i and shape j (`closest_points`);
+    level "distance" only."""
     count: jax.Array
     """() int32: number of broad-phase pairs, including any that did not fit."""
     overflow: jax.Array
@@ -90,6 +111,20 @@ def _check_scene(shapes, poses, level):
                          f"got batch shape {shapes.batch_shape}")
     if level not in LEVELS:
         raise ValueError(f"level must be one of {LEVELS}, got {level!r}")
+
+
+def _check_margin_and_smoothing(level, margin, smoothing):
+    """Concrete margins and smoothings are checked before `collide` traces them; traced ones
+    are the caller's business."""
+    _contacts.check_margin(margin)
+    if not isinstance(margin, jax.core.Tracer):
+        if level == "intersects" and float(margin) > 0:
+            raise ValueError("level 'intersects' has no distance to compare with a margin: use "
+                             "level 'penetration', 'distance' or 'contacts'")
+    if smoothing is not None:
+        if level != "distance":
+            raise ValueError(f"smoothing applies to level 'distance', not {level!r}")
+        _queries.check_smoothing(smoothing)
 
 
 def _as_planes(planes, plane_poses, dim: int, dtype) -> tuple[HalfSpace, Pose]:
@@ -122,47 +157,91 @@ def _as_planes(planes, plane_poses, dim: int, dtype) -> tuple[HalfSpace, Pose]:
     return planes, plane_poses
 
 
-def _plane_phase(level, shapes, poses, planes, plane_poses) -> PlaneCollisions:
+def _level_query(level, margin, smoothing):
+    """The one-pair query of a level (for shape pairs and shape-plane pairs alike)."""
+    if level == "intersects":
+        return _queries.intersects
+    if level == "penetration":
+        return _queries.penetration
+    if level == "contacts":
+        return functools.partial(_penetration_and_contacts, margin=margin)
+    return functools.partial(_closest_and_distance, smoothing=smoothing)
+
+
+def _level_fields(level, result, margin) -> dict:
+    """The result fields of a level from its query's answers (any leading axes)."""
+    if level == "intersects":
+        return {"colliding": result, "depth": None, "normal": None, "contacts": None,
+                "near": result}
+    if level == "distance":
+        closest, distance = result
+        return {"colliding": closest.signed_distance <= 0, "depth": -closest.signed_distance,
+                "normal": closest.normal, "contacts": None, "near": distance <= margin,
+                "signed_distance": distance,
+                "witness_points": jnp.stack([closest.point_a, closest.point_b], axis=-2)}
+    hit, contact_set = (result, None) if level == "penetration" else result
+    near = (hit.depth >= -margin if contact_set is None
+            else jnp.any(contact_set.valid, axis=-1))
+    return {"colliding": hit.depth >= 0, "depth": hit.depth, "normal": hit.normal,
+            "contacts": contact_set, "near": near}
+
+
+def _plane_phase(query, level, margin, shapes, poses, planes, plane_poses) -> PlaneCollisions:
     """Every shape against every half-space at `level`, in one dense batch."""
-    query = {"intersects": _queries.intersects, "penetration": _queries.penetration,
-             "contacts": _penetration_and_contacts}[level]
     per_plane = jax.vmap(query, in_axes=(None, None, 0, 0))
     result = jax.vmap(per_plane, in_axes=(0, 0, None, None))(shapes, poses, planes, plane_poses)
-    if level == "intersects":
-        return PlaneCollisions(colliding=result, depth=None, normal=None, contacts=None)
-    hit, contact_set = (result, None) if level == "penetration" else result
-    return PlaneCollisions(colliding=hit.depth >= 0, depth=hit.depth, normal=hit.normal,
-                           contacts=contact_set)
+    return PlaneCollisions(**_level_fields(level, result, margin))
 
 
-def _penetration_and_contacts(a, pose_a, b, pose_b):
+def _penetration_and_contacts(a, pose_a, b, pose_b, margin=0.0):
     # Both share the SAT; under jit XLA computes it once.
     return (_queries.penetration(a, pose_a, b, pose_b),
-            _contacts.contacts(a, pose_a, b, pose_b))
+            _contacts.contacts(a, pose_a, b, pose_b, margin=margin))
 
 
-def _narrow_phase(level, shapes, poses, pairs, chunk_size, devices):
-    """Per-slot results at `level` for the candidate pairs."""
-    query = {"intersects": _queries.intersects, "penetration": _queries.penetration,
-             "contacts": _penetration_and_contacts}[level]
+def _closest_and_distance(a, pose_a, b, pose_b, smoothing=None):
+    closest = _queries.closest_points(a, pose_a, b, pose_b)
+    if smoothing is None:
+        return closest, closest.signed_distance
+    return closest, _queries.signed_distance(a, pose_a, b, pose_b, smoothing=smoothing)
+
+
+def _narrow_phase(query, shapes, poses, pairs, chunk_size, devices):
+    """Per-slot results of `query` for the candidate pairs."""
     return _batching.query_pairs(query, shapes, poses, pairs, chunk_size=chunk_size,
                                  devices=devices)
 
 
-@functools.partial(jax.jit, static_argnames=("capacity", "candidate_capacity", "level",
-                                             "chunk_size", "devices"))
+def _inflated_aabbs(shapes, poses, margin):
+    """World AABBs grown by margin / 2 on every side: two shapes within `margin` of each other
+    have overlapping boxes (their gap along any axis is at most their distance)."""
+    low, high = world_aabbs(shapes, poses)
+    half = jnp.asarray(margin, low.dtype) / 2
+    return low - half, high + half
+
+
 def collide(shapes: Polytope, poses: Pose, *, capacity: int, level: str = "penetration",
-            candidate_capacity: int | None = None, groups=None, masks=None, body_ids=None,
-            chunk_size: int | None = None, devices=None, planes=None,
-            plane_poses=None) -> SceneCollisions:
-    """Every colliding pair of a scene of N shapes, equal to the brute-force all-pairs answer.
+            margin=0.0, smoothing=None, candidate_capacity: int | None = None, groups=None,
+            masks=None, body_ids=None, chunk_size: int | None = None, devices=None,
+            planes=None, plane_poses=None) -> SceneCollisions:
+    """Every colliding (or near) pair of a scene of N shapes, equal to the brute-force
+    all-pairs answer.
 
     Args:
       shapes: Polytope stacked to (N, ...) (see `stack`), all of one dimension.
       poses: Pose batched to (N,).
       capacity: static number of pair slots; `overflow` > 0 says it was too small.
-      level: "intersects" (yes/no only), "penetration" (+ depth and normal) or "contacts"
-        (+ contact manifolds, see `contacts`).
+        `collide_capacity` computes the exact number needed.
+      level: "intersects" (yes/no only), "penetration" (+ depth and normal), "distance"
+        (+ signed distance and witness points, see `closest_points`) or "contacts" (+ contact
+        manifolds, see `contacts`).
+      margin: a distance >= 0 (may be traced): the broad phase keeps every pair within it
+        (AABBs grown by margin / 2), and `near` flags the pairs within it (see
+        `SceneCollisions.near`); contacts keep points down to depth -margin. Not with level
+        "intersects".
+      smoothing: None, or a length tau > 0 for level "distance": `signed_distance` is then
+        the smooth one (`signed_distance(..., smoothing=tau)`), `near` compares it with the
+        margin, and the witness points stay exact.
       candidate_capacity, groups, masks, body_ids: see `broad_phase`.
       chunk_size, devices: how the narrow phase runs over the slots (see `query_pairs`);
         `devices` is an int or a tuple of devices (hashable: it is static).
@@ -174,32 +253,70 @@ def collide(shapes: Polytope, poses: Pose, *, capacity: int, level: str = "penet
 
     Returns:
       SceneCollisions. The function is jitted: capacity, level, candidate_capacity,
-      chunk_size and devices are static, so changing them recompiles.
+      chunk_size and devices are static, so changing them recompiles (so does switching
+      smoothing between None and a number).
     """
+    _check_margin_and_smoothing(level, margin, smoothing)
+    return _collide(shapes, poses, capacity=capacity, level=level, margin=margin,
+                    smoothing=smoothing, candidate_capacity=candidate_capacity, groups=groups,
+                    masks=masks, body_ids=body_ids, chunk_size=chunk_size, devices=devices,
+                    planes=planes, plane_poses=plane_poses)
+
+
+@functools.partial(jax.jit, static_argnames=("capacity", "candidate_capacity", "level",
+                                             "chunk_size", "devices"))
+def _collide(shapes, poses, *, capacity, level, margin, smoothing, candidate_capacity, groups,
+             masks, body_ids, chunk_size, devices, planes, plane_poses) -> SceneCollisions:
     _check_scene(shapes, poses, level)
+    query = _level_query(level, margin, smoothing)
     plane_result = None
     if planes is not None:
         planes, plane_poses = _as_planes(planes, plane_poses, shapes.dim, shapes.dtype)
-        plane_result = _plane_phase(level, shapes, poses, planes, plane_poses)
+        plane_result = _plane_phase(query, level, margin, shapes, poses, planes, plane_poses)
     elif plane_poses is not None:
         raise ValueError("plane_poses given without planes")
-    low, high = world_aabbs(shapes, poses)
+    low, high = _inflated_aabbs(shapes, poses, margin)
     candidates = broad_phase(low, high, capacity=capacity, candidate_capacity=candidate_capacity,
                              groups=groups, masks=masks, body_ids=body_ids)
-    result = _narrow_phase(level, shapes, poses, candidates.pairs, chunk_size, devices)
-    depth = normal = contact_set = None
-    if level == "intersects":
-        touching = result
-    else:
-        hit, contact_set = (result, None) if level == "penetration" else result
-        depth, normal, touching = hit.depth, hit.normal, hit.depth >= 0
+    fields = _level_fields(level, _narrow_phase(query, shapes, poses, candidates.pairs,
+                                                chunk_size, devices), margin)
+    fields["colliding"] = candidates.valid & fields["colliding"]
+    fields["near"] = candidates.valid & fields["near"]
+    fields.setdefault("signed_distance", None)
+    fields.setdefault("witness_points", None)
     non_finite = _non_finite_shapes(shapes, poses)
-    return SceneCollisions(pairs=candidates.pairs, valid=candidates.valid,
-                           colliding=candidates.valid & touching, depth=depth, normal=normal,
-                           contacts=contact_set, count=candidates.count,
-                           overflow=candidates.overflow, non_finite=non_finite,
+    return SceneCollisions(pairs=candidates.pairs, valid=candidates.valid, **fields,
+                           count=candidates.count, overflow=candidates.overflow,
+                           non_finite=non_finite,
                            non_finite_count=jnp.sum(non_finite, dtype=jnp.int32),
                            planes=plane_result)
+
+
+def collide_capacity(shapes: Polytope, poses: Pose, *, margin=0.0, groups=None, masks=None,
+                     body_ids=None) -> int:
+    """The exact number of broad-phase pairs `collide` finds (with the same margin and
+    filters): pass it, or more, as `capacity` and `overflow` is 0. Eager (not traceable): it
+    calls the broad phase with growing buffers until none overflows, each size compiling
+    once. The narrow phase is not run.
+
+    Example: `scene = collide(shapes, poses, capacity=collide_capacity(shapes, poses))`. In a
+    loop whose scene changes, size it once with headroom and watch `overflow`."""
+    _check_scene(shapes, poses, "penetration")
+    _check_margin_and_smoothing("penetration", margin, None)
+    low, high = _inflated_aabbs(shapes, poses, margin)
+    count = low.shape[0]
+    capacity = max(16, 4 * count)
+    while True:
+        found = _counted_broad_phase(low, high, groups, masks, body_ids, capacity=capacity)
+        if int(found.overflow) == 0:
+            return int(found.count)
+        capacity = max(2 * capacity, int(found.count))
+
+
+@functools.partial(jax.jit, static_argnames=("capacity",))
+def _counted_broad_phase(low, high, groups, masks, body_ids, *, capacity):
+    return broad_phase(low, high, capacity=capacity, groups=groups, masks=masks,
+                       body_ids=body_ids)
 
 
 def _non_finite_shapes(shapes: Polytope, poses: Pose) -> jax.Array:

@@ -148,7 +148,7 @@ def test_collide_with_half_spaces():
     expected = np.max(offsets[None, None] - world @ normals.T, axis=1)  # (N, P)
     plain = jaxsat.collide(shapes, poses, capacity=256)
     assert plain.planes is None
-    for level in ("intersects", "penetration", "contacts"):
+    for level in ("intersects", "penetration", "distance", "contacts"):
         result = jaxsat.collide(shapes, poses, capacity=256, level=level, planes=planes)
         np.testing.assert_array_equal(result.planes.colliding, expected >= 0)
         assert int(result.count) == int(plain.count)
@@ -157,6 +157,9 @@ def test_collide_with_half_spaces():
             assert result.planes.depth is None
             continue
         np.testing.assert_allclose(result.planes.depth, expected, atol=1e-9)
+        if level == "distance":
+            np.testing.assert_allclose(result.planes.signed_distance, -expected, atol=1e-9)
+            np.testing.assert_array_equal(result.planes.near, expected >= 0)
         np.testing.assert_allclose(result.planes.normal,
                                    np.broadcast_to(-normals, (40, 2, 3)), atol=1e-12)
         if level == "contacts":
@@ -217,3 +220,89 @@ def test_collide_sharded_over_four_devices_equals_one_device():
         print("ok", len(_colliding(one)))
     ''')
     assert output.startswith("ok")
+
+
+def _signed_distances(shapes, poses, smoothing=None):
+    """Signed distance of every pair i < j (vmap over all of them) -> {(i, j): distance}."""
+    count = poses.translation.shape[0]
+    rows, cols = np.triu_indices(count, 1)
+    take = lambda tree, index: jax.tree.map(lambda x: x[index], tree)  # noqa: E731
+    query = jax.vmap(lambda a, pa, b, pb: jaxsat.signed_distance(a, pa, b, pb,
+                                                                 smoothing=smoothing))
+    values = np.asarray(jax.jit(query)(take(shapes, rows), take(poses, rows), take(shapes, cols),
+                                       take(poses, cols)))
+    return {(int(i), int(j)): value for i, j, value in zip(rows, cols, values, strict=True)}
+
+
+def _near(result) -> set:
+    return {tuple(int(k) for k in pair) for pair in np.asarray(result.pairs)[result.near]}
+
+
+@pytest.mark.slow
+def test_collide_with_a_margin_returns_every_pair_within_it():
+    """Level "distance" with a margin: exactly the pairs whose brute-force signed distance is
+    at most the margin, with that distance and the closest points; smooth, the pairs whose
+    smooth distance is; levels "penetration" and "contacts" flag a superset (their SAT gap is
+    at most the distance). The capacity comes from `collide_capacity`."""
+    rng = np.random.default_rng(12)
+    shapes, poses = _scene_3d(rng, 50, "boxes", 5.0)
+    margin = 0.4
+    capacity = jaxsat.collide_capacity(shapes, poses, margin=margin)
+    exact = _signed_distances(shapes, poses)
+    within = {pair for pair, value in exact.items() if value <= margin}
+    result = jaxsat.collide(shapes, poses, capacity=capacity, level="distance", margin=margin)
+    assert int(result.overflow) == 0 and int(result.count) == capacity
+    assert _near(result) == within
+    assert 10 <= len(within) and len({p for p, v in exact.items() if v <= 0}) < len(within)
+    colliding = {tuple(int(k) for k in p) for p in np.asarray(result.pairs)[result.colliding]}
+    assert colliding == {pair for pair, value in exact.items() if value <= 0}
+    for slot in np.nonzero(np.asarray(result.valid))[0]:
+        i, j = (int(k) for k in result.pairs[slot])
+        np.testing.assert_allclose(result.signed_distance[slot], exact[i, j], atol=1e-12)
+        one = jaxsat.closest_points(jax.tree.map(lambda x, i=i: x[i], shapes),
+                                    jax.tree.map(lambda x, i=i: x[i], poses),
+                                    jax.tree.map(lambda x, j=j: x[j], shapes),
+                                    jax.tree.map(lambda x, j=j: x[j], poses))
+        np.testing.assert_allclose(result.witness_points[slot], [one.point_a, one.point_b],
+                                   atol=1e-9)
+        if slot > 12:
+            break
+    smooth = _signed_distances(shapes, poses, smoothing=0.02)
+    soft = jaxsat.collide(shapes, poses, capacity=capacity, level="distance", margin=margin,
+                          smoothing=0.02)
+    assert _near(soft) == {pair for pair, value in smooth.items() if value <= margin}
+    for level in ("penetration", "contacts"):
+        loose = jaxsat.collide(shapes, poses, capacity=capacity, level=level, margin=margin)
+        assert within <= _near(loose), level
+
+
+@pytest.mark.slow
+def test_collide_capacity_sizes_a_dense_scene():
+    """A dense scene overflows a guessed capacity; `collide_capacity` gives the exact count,
+    and with it nothing overflows and every colliding pair is found."""
+    shapes, poses = _scene_3d(np.random.default_rng(13), 150, "boxes", 2.5)
+    guessed = jaxsat.collide(shapes, poses, capacity=64)
+    assert int(guessed.overflow) > 0
+    capacity = jaxsat.collide_capacity(shapes, poses)
+    # count is an upper bound when the candidate buffer overflowed too
+    assert 64 < capacity <= int(guessed.count)
+    result = jaxsat.collide(shapes, poses, capacity=capacity)
+    assert int(result.overflow) == 0 and bool(result.valid.all())
+    assert set(_colliding(result)) == set(_brute_force(shapes, poses))
+
+
+def test_collide_rejects_a_bad_margin_or_smoothing():
+    shapes, poses = _scene_2d(np.random.default_rng(0), 4, 1.0)
+    for margin in (-0.1, np.nan, np.inf):
+        with pytest.raises(ValueError, match="margin"):
+            jaxsat.collide(shapes, poses, capacity=8, level="distance", margin=margin)
+    with pytest.raises(TypeError, match="margin"):
+        jaxsat.collide(shapes, poses, capacity=8, margin="wide")
+    with pytest.raises(ValueError, match="intersects"):
+        jaxsat.collide(shapes, poses, capacity=8, level="intersects", margin=0.1)
+    with pytest.raises(ValueError, match="smoothing applies to level 'distance'"):
+        jaxsat.collide(shapes, poses, capacity=8, smoothing=0.1)
+    with pytest.raises(ValueError, match="smoothing"):
+        jaxsat.collide(shapes, poses, capacity=8, level="distance", smoothing=0.0)
+    with pytest.raises(ValueError, match="margin"):
+        jaxsat.collide_capacity(shapes, poses, margin=-1.0)
