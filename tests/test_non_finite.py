@@ -107,9 +107,8 @@ def _pairs(result) -> set:
     return {tuple(int(k) for k in pair) for pair in pairs}
 
 
-@pytest.mark.parametrize("where", ["translation",
-                                   pytest.param("quaternion", marks=pytest.mark.slow),
-                                   pytest.param("vertex", marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("where", ["translation", "quaternion", "vertex"])
 def test_collide_flags_a_non_finite_shape_and_keeps_every_other_pair(where):
     """One NaN shape made the grid's cell size NaN and put every box into one cell: all N^2/2
     pairs became candidates, overflowed the candidate buffer, and other pairs went missing.

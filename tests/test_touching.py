@@ -33,7 +33,7 @@ def _batched(a, params_a, b, params_b):
 _batched_fast = jax.jit(_batched.__wrapped__, compiler_options=FAST_COMPILE)
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("dtype", [pytest.param(dtype, id=DTYPE_IDS[k], marks=(
     () if dtype == np.float32 else pytest.mark.slow)) for k, dtype in enumerate(DTYPES)])
 def test_queries_agree_on_touching_shapes(dim, dtype):
