@@ -46,6 +46,8 @@ class CandidatePairs:
     """() int32: number of overlapping pairs found, including those that did not fit."""
     overflow: jax.Array
     """() int32: pairs (or unexamined grid candidates) that did not fit; 0 = complete."""
+    non_finite: jax.Array
+    """(N,) bool: box i has a NaN or infinite corner; it is in no pair."""
 
 
 def world_aabbs(shapes: Polytope, poses: Pose) -> tuple[jax.Array, jax.Array]:
@@ -213,7 +215,8 @@ def broad_phase(low: jax.Array, high: jax.Array, *, capacity: int,
     return CandidatePairs(pairs=_compact(pairs, keep, capacity, 0),
                           valid=jnp.arange(capacity, dtype=jnp.int32) < count,
                           count=count + unexamined,
-                          overflow=jnp.maximum(count - capacity, 0) + unexamined)
+                          overflow=jnp.maximum(count - capacity, 0) + unexamined,
+                          non_finite=~finite)
 
 
 def _check_broad_phase(low, high, capacity, candidate_capacity, groups, masks, body_ids):

@@ -49,10 +49,10 @@ class PlaneCollisions:
     """Contacts with leading (N, P) axes; None below level "contacts"."""
     near: jax.Array
     """(N, P) bool: within `margin` of the half-space (as `SceneCollisions.near`)."""
-    signed_distance: jax.Array | None = None
+    signed_distance: jax.Array | None
     """(N, P) float: signed distance (exact, or smooth with `smoothing`); level "distance"
     only."""
-    witness_points: jax.Array | None = None
+    witness_points: jax.Array | None
     """(N, P, 2, D) float: the closest points of the shape and of the half-space (when
     overlapping, the deepest pair); level "distance" only."""
 
@@ -94,9 +94,9 @@ class SceneCollisions:
     overflow: jax.Array
     """() int32: broad-phase pairs that did not fit in `capacity`; 0 means nothing was missed."""
     non_finite: jax.Array
-    """(N,) bool: shape i has a NaN or infinite pose, vertex or radius. It is in no pair slot
-    (its results would be NaN), the other shapes pair as they would without it, and its rows
-    of `planes` are NaN (not colliding)."""
+    """(N,) bool: shape i has a NaN or infinite pose, vertex or radius (its world AABB is not
+    finite). It is in no pair slot (its results would be NaN), the other shapes pair as they
+    would without it, and its rows of `planes` are NaN (not colliding)."""
     non_finite_count: jax.Array
     """() int32: how many shapes are `non_finite`; 0 means every shape took part."""
     planes: PlaneCollisions | None = None
@@ -169,20 +169,22 @@ def _level_query(level, margin, smoothing):
 
 
 def _level_fields(level, result, margin) -> dict:
-    """The result fields of a level from its query's answers (any leading axes)."""
+    """The result fields of a level from its query's answers (any leading axes); None for
+    what the level does not compute."""
+    empty = {"depth": None, "normal": None, "contacts": None, "signed_distance": None,
+             "witness_points": None}
     if level == "intersects":
-        return {"colliding": result, "depth": None, "normal": None, "contacts": None,
-                "near": result}
+        return {**empty, "colliding": result, "near": result}
     if level == "distance":
         closest, distance = result
-        return {"colliding": closest.signed_distance <= 0, "depth": -closest.signed_distance,
-                "normal": closest.normal, "contacts": None, "near": distance <= margin,
-                "signed_distance": distance,
+        return {**empty, "colliding": closest.signed_distance <= 0,
+                "depth": -closest.signed_distance, "normal": closest.normal,
+                "near": distance <= margin, "signed_distance": distance,
                 "witness_points": jnp.stack([closest.point_a, closest.point_b], axis=-2)}
     hit, contact_set = (result, None) if level == "penetration" else result
     near = (hit.depth >= -margin if contact_set is None
             else jnp.any(contact_set.valid, axis=-1))
-    return {"colliding": hit.depth >= 0, "depth": hit.depth, "normal": hit.normal,
+    return {**empty, "colliding": hit.depth >= 0, "depth": hit.depth, "normal": hit.normal,
             "contacts": contact_set, "near": near}
 
 
@@ -282,13 +284,10 @@ def _collide(shapes, poses, *, capacity, level, margin, smoothing, candidate_cap
                                                 chunk_size, devices), margin)
     fields["colliding"] = candidates.valid & fields["colliding"]
     fields["near"] = candidates.valid & fields["near"]
-    fields.setdefault("signed_distance", None)
-    fields.setdefault("witness_points", None)
-    non_finite = _non_finite_shapes(shapes, poses)
     return SceneCollisions(pairs=candidates.pairs, valid=candidates.valid, **fields,
                            count=candidates.count, overflow=candidates.overflow,
-                           non_finite=non_finite,
-                           non_finite_count=jnp.sum(non_finite, dtype=jnp.int32),
+                           non_finite=candidates.non_finite,
+                           non_finite_count=jnp.sum(candidates.non_finite, dtype=jnp.int32),
                            planes=plane_result)
 
 
@@ -304,8 +303,7 @@ def collide_capacity(shapes: Polytope, poses: Pose, *, margin=0.0, groups=None, 
     _check_scene(shapes, poses, "penetration")
     _check_margin_and_smoothing("penetration", margin, None)
     low, high = _inflated_aabbs(shapes, poses, margin)
-    count = low.shape[0]
-    capacity = max(16, 4 * count)
+    capacity = max(16, 4 * low.shape[0])
     while True:
         found = _counted_broad_phase(low, high, groups, masks, body_ids, capacity=capacity)
         if int(found.overflow) == 0:
@@ -318,10 +316,3 @@ def _counted_broad_phase(low, high, groups, masks, body_ids, *, capacity):
     return broad_phase(low, high, capacity=capacity, groups=groups, masks=masks,
                        body_ids=body_ids)
 
-
-def _non_finite_shapes(shapes: Polytope, poses: Pose) -> jax.Array:
-    """(N,) bool: a NaN or inf in shape i's vertices, radius, translation or rotation."""
-    leaves = [shapes.vertices, poses.translation, poses.rotation]
-    leaves += [] if shapes.radius is None else [shapes.radius]
-    finite = [jnp.all(jnp.isfinite(leaf).reshape(leaf.shape[0], -1), axis=1) for leaf in leaves]
-    return ~functools.reduce(jnp.logical_and, finite)
