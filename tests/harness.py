@@ -1178,10 +1178,11 @@ def touching_pairs(dim: int, dtype, motions: int = 5, seed: int = 0):
     """Every `TOUCHING` configuration at every scale of `TOUCHING_SCALES`, as placed (both
     shapes at the identity pose) and under `motions` random common rigid motions (touching
     up to the rounding of the poses), each also with b moved by +-4 ulps of the scale along a
-    random direction. Returns (names, a, params_a, b, params_b): names (N,) and the batched
-    inputs of a (Polytope stack, pose parameters) and b, in `dtype`."""
+    random direction. Returns (names, placed, a, params_a, b, params_b): names (N,), placed
+    (N,) bool (the pairs at the identity pose and not nudged, which touch exactly) and the
+    batched inputs of a (Polytope stack, pose parameters) and b, in `dtype`."""
     rng = np.random.default_rng(seed)
-    names, shapes_a, shapes_b, params_a, params_b = [], [], [], [], []
+    names, placed, shapes_a, shapes_b, params_a, params_b = [], [], [], [], [], []
     ulp = float(np.finfo(dtype).eps)
     for name, (rows_a, rows_b) in TOUCHING[dim].items():
         rows_a = np.asarray(rows_a, np.float64)
@@ -1193,11 +1194,12 @@ def touching_pairs(dim: int, dtype, motions: int = 5, seed: int = 0):
             turns, shifts = random_motion(dim, motions, rng, scale)
             turns = np.concatenate([[0.0] if dim == 2 else [IDENTITY], turns])
             shifts = np.concatenate([np.zeros((1, dim)), shifts])
-            for turn, shift in zip(turns, shifts, strict=True):
+            for motion, (turn, shift) in enumerate(zip(turns, shifts, strict=True)):
                 for nudge in (0.0, 4.0, -4.0):
                     direction = rng.normal(size=dim)
                     moved = shift + nudge * ulp * scale * direction / np.linalg.norm(direction)
                     names.append(name)
+                    placed.append(motion == 0 and nudge == 0.0)
                     shapes_a.append(a)
                     shapes_b.append(b)
                     # 2D: (x, y, angle); 3D: translation then quaternion.
@@ -1207,5 +1209,5 @@ def touching_pairs(dim: int, dtype, motions: int = 5, seed: int = 0):
     split = (lambda p: (p[:, 0], p[:, 1], p[:, 2])) if dim == 2 else \
         (lambda p: (p[:, :3], p[:, 3:]))
     cast = lambda parts: tuple(np.asarray(part, dtype) for part in parts)  # noqa: E731
-    return (np.array(names), jaxsat.stack(shapes_a), cast(split(params_a)),
+    return (np.array(names), np.array(placed), jaxsat.stack(shapes_a), cast(split(params_a)),
             jaxsat.stack(shapes_b), cast(split(params_b)))

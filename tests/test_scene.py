@@ -32,13 +32,17 @@ def _scene_2d(rng, count, world, dtype=np.float64):
     return jaxsat.stack(shapes), jax.vmap(jaxsat.pose2)(xy[:, 0], xy[:, 1], angles)
 
 
+def _every_pair(shapes, poses):
+    """(rows, cols, a, pose_a, b, pose_b): every pair i < j of the scene, batched."""
+    rows, cols = np.triu_indices(poses.translation.shape[0], 1)
+    take = lambda tree, index: jax.tree.map(lambda x: x[index], tree)  # noqa: E731
+    return rows, cols, take(shapes, rows), take(poses, rows), take(shapes, cols), take(poses, cols)
+
+
 def _brute_force(shapes, poses, keep=None):
     """Penetration of every pair i < j (vmap over all of them) -> {(i, j): (depth, normal)}."""
-    count = poses.translation.shape[0]
-    rows, cols = np.triu_indices(count, 1)
-    take = lambda tree, index: jax.tree.map(lambda x: x[index], tree)  # noqa: E731
-    hits = jax.jit(jax.vmap(jaxsat.penetration))(take(shapes, rows), take(poses, rows),
-                                                  take(shapes, cols), take(poses, cols))
+    rows, cols, *batch = _every_pair(shapes, poses)
+    hits = jax.jit(jax.vmap(jaxsat.penetration))(*batch)
     depth, normal = np.asarray(hits.depth), np.asarray(hits.normal)
     colliding = depth >= 0
     if keep is not None:
@@ -224,13 +228,10 @@ def test_collide_sharded_over_four_devices_equals_one_device():
 
 def _signed_distances(shapes, poses, smoothing=None):
     """Signed distance of every pair i < j (vmap over all of them) -> {(i, j): distance}."""
-    count = poses.translation.shape[0]
-    rows, cols = np.triu_indices(count, 1)
-    take = lambda tree, index: jax.tree.map(lambda x: x[index], tree)  # noqa: E731
+    rows, cols, *batch = _every_pair(shapes, poses)
     query = jax.vmap(lambda a, pa, b, pb: jaxsat.signed_distance(a, pa, b, pb,
                                                                  smoothing=smoothing))
-    values = np.asarray(jax.jit(query)(take(shapes, rows), take(poses, rows), take(shapes, cols),
-                                       take(poses, cols)))
+    values = np.asarray(jax.jit(query)(*batch))
     return {(int(i), int(j)): value for i, j, value in zip(rows, cols, values, strict=True)}
 
 
