@@ -62,12 +62,16 @@ def query_batch(query: Callable, a, pose_a, b, pose_b, *, chunk_size: int | None
         `jaxsat.intersects`, `jaxsat.signed_distance`. Bind keyword arguments with
         functools.partial, e.g. `functools.partial(jaxsat.signed_distance, smoothing=0.01)`;
         the compiled program is cached per query object, so build the partial once and reuse it.
-      a, pose_a, b, pose_b: shapes (anything with a `batch_shape`, like `Polytope`) and `Pose`s.
-        Each is either batched, with one leading axis of length N (`jaxsat.stack` for shapes),
-        or unbatched and then shared by all N pairs. At least one must be batched.
+      a: the first shapes (anything with a `batch_shape`, like `Polytope`). Each of a,
+        pose_a, b and pose_b is either batched, with one leading axis of length N
+        (`jaxsat.stack` for shapes), or unbatched and then shared by all N pairs. At least
+        one must be batched.
+      pose_a: the `Pose`s of a.
+      b: the second shapes.
+      pose_b: the `Pose`s of b.
       chunk_size: None runs one vmap over all N pairs. A positive int runs `jax.lax.map` over
-        chunks of that many pairs, so that peak memory follows the chunk, not N; 2**14 is a
-        good start on CPU (for 1e6 box pairs, 2**12 to 2**16 also ran faster than one vmap).
+        chunks of that many pairs, so that peak memory follows the chunk, not N; `2**14` is a
+        good start on CPU (for 1e6 box pairs, `2**12` to `2**16` also ran faster than one vmap).
         At least N (per device) is the same as None. Static under jit.
       devices: None runs on the default device. An int k uses the first k of jax.devices(); a
         sequence of devices uses those. The N pairs are sharded over them (the shared arguments
@@ -112,7 +116,8 @@ def query_pairs(query: Callable, shapes, poses: Pose, pairs, *, chunk_size: int 
       pairs: (P, 2) integer array-like of indices into the N shapes; negative indices count
         from the end, as in NumPy. Out-of-range indices raise when `pairs` is concrete; under
         jit they cannot be checked and JAX clamps them.
-      chunk_size, devices: as in `query_batch`.
+      chunk_size: as in `query_batch`.
+      devices: as in `query_batch`.
 
     Returns:
       The query's pytree, every leaf with a leading axis of length P (P = 0 gives empty leaves;

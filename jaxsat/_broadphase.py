@@ -179,13 +179,15 @@ def broad_phase(low: jax.Array, high: jax.Array, *, capacity: int,
     """Every pair of boxes whose AABBs overlap (touching counts), in `capacity` slots.
 
     Args:
-      low, high: (N, D) AABB corners, D = 2 or 3 (e.g. from `world_aabbs`).
+      low: (N, D) lower AABB corners, D = 2 or 3 (e.g. from `world_aabbs`).
+      high: (N, D) upper AABB corners.
       capacity: static number of output slots.
       candidate_capacity: static size of the grid-candidate buffer (pairs in the same or
         adjacent cells, before the AABB test); default 8 * capacity + 16 * N.
-      groups, masks: (N,) integer bit masks (physics-engine collision filtering): i and j
-        pair only if groups[i] & masks[j] and groups[j] & masks[i] are both non-zero.
-        Give both or neither.
+      groups: (N,) integer bit masks (physics-engine collision filtering): i and j pair
+        only if groups[i] & masks[j] and groups[j] & masks[i] are both non-zero. Give both
+        groups and masks, or neither.
+      masks: (N,) integer bit masks, see `groups`.
       body_ids: (N,) integers: shapes with equal ids never pair (parts of one rigid body, or
         static shapes, which never move relative to each other).
 

@@ -178,7 +178,8 @@ def concave_polygon(vertices, max_pieces: int | None = None, max_vertices: int |
 
     Args:
       vertices: (N, 2) array-like of the polygon's vertices, in either winding order.
-      max_pieces, max_vertices: padding, as in `compound`.
+      max_pieces: padding, as in `compound`.
+      max_vertices: padding, as in `compound`.
       dtype: float dtype of the result; default: the input's float dtype, else JAX's default.
         An explicit float64 needs 64-bit JAX (`jax_enable_x64`): ValueError otherwise.
 
@@ -292,9 +293,11 @@ def compound_intersects(a: Compound | Polytope, pose_a: Pose, b: Compound | Poly
     """True where some real piece of a overlaps or touches some real piece of b.
 
     Args:
-      a, b: compounds (or plain Polytopes, sharp or rounded, taken as one-piece compounds) of
-        one dimension, or one HalfSpace; unbatched (use jax.vmap for batches).
-      pose_a, pose_b: their poses.
+      a: the first shape, unbatched (use jax.vmap for batches): a compound, or a plain
+        Polytope (sharp or rounded, taken as a one-piece compound), or a HalfSpace.
+      pose_a: the pose of a.
+      b: the second shape, of the same dimension as a; at most one of a and b is a HalfSpace.
+      pose_b: the pose of b.
 
     Returns:
       () bool.
@@ -315,9 +318,11 @@ def compound_penetration(a: Compound | Polytope, pose_a: Pose, b: Compound | Pol
     row-major (piece_a, piece_b) order. Gradients flow through the winning pair only.
 
     Args:
-      a, b: compounds (or plain Polytopes, sharp or rounded, taken as one-piece compounds) of
-        one dimension, or one HalfSpace; unbatched (use jax.vmap for batches).
-      pose_a, pose_b: their poses.
+      a: the first shape, unbatched (use jax.vmap for batches): a compound, or a plain
+        Polytope (sharp or rounded, taken as a one-piece compound), or a HalfSpace.
+      pose_a: the pose of a.
+      b: the second shape, of the same dimension as a; at most one of a and b is a HalfSpace.
+      pose_b: the pose of b.
 
     Returns:
       CompoundPenetration in the common dtype of the inputs; normal points from a towards b,

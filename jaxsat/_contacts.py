@@ -202,9 +202,12 @@ def contacts(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
     penetration depth. The same single point stands in if clipping finds nothing.
 
     Args:
-      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches): Polytopes,
-        sharp or rounded, or one HalfSpace.
-      pose_a, pose_b: their poses.
+      a: the first shape, unbatched (use jax.vmap for batches): a Polytope, sharp or
+        rounded, or a HalfSpace.
+      pose_a: the pose of a.
+      b: the second shape, of the same dimension D as a; at most one of a and b is a
+        HalfSpace.
+      pose_b: the pose of b.
       margin: non-negative distance: points whose depth is at least -margin are valid, so that
         shapes up to `margin` apart already get (negative-depth) contacts. May be traced.
 

@@ -123,9 +123,12 @@ def signed_distance(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
     """Signed distance between two convex shapes: > 0 apart, < 0 overlapping.
 
     Args:
-      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches): Polytopes,
-        sharp or rounded, or one HalfSpace.
-      pose_a, pose_b: their poses.
+      a: the first shape, unbatched (use jax.vmap for batches): a Polytope, sharp or
+        rounded, or a HalfSpace.
+      pose_a: the pose of a.
+      b: the second shape, of the same dimension D as a; at most one of a and b is a
+        HalfSpace.
+      pose_b: the pose of b.
       smoothing: None (the default) for the exact value: the Euclidean distance when the
         shapes are apart, minus the exact penetration depth when they overlap. A length
         tau > 0 for a smooth approximation that satisfies
@@ -195,9 +198,12 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
     """Exact SAT penetration depth and axis for one pair of convex shapes.
 
     Args:
-      a, b: shapes of the same dimension D (unbatched; use jax.vmap for batches): Polytopes,
-        sharp or rounded, or one HalfSpace.
-      pose_a, pose_b: their poses.
+      a: the first shape, unbatched (use jax.vmap for batches): a Polytope, sharp or
+        rounded, or a HalfSpace.
+      pose_a: the pose of a.
+      b: the second shape, of the same dimension D as a; at most one of a and b is a
+        HalfSpace.
+      pose_b: the pose of b.
       prune: in 3D, skip the edge pairs whose arcs do not cross on the Gauss map (they do not
         bound the Minkowski difference, so they never give the answer). False tests every
         pair of edge directions, as a textbook SAT does: the same result for overlapping

@@ -244,9 +244,12 @@ def collide(shapes: Polytope, poses: Pose, *, capacity: int, level: str = "penet
       smoothing: None, or a length tau > 0 for level "distance": `signed_distance` is then
         the smooth one (`signed_distance(..., smoothing=tau)`), `near` compares it with the
         margin, and the witness points stay exact.
-      candidate_capacity, groups, masks, body_ids: see `broad_phase`.
-      chunk_size, devices: how the narrow phase runs over the slots (see `query_pairs`);
-        `devices` is an int or a tuple of devices (hashable: it is static).
+      candidate_capacity: see `broad_phase`.
+      groups: see `broad_phase`.
+      masks: see `broad_phase`.
+      body_ids: see `broad_phase`.
+      chunk_size: how the narrow phase runs over the slots (see `query_pairs`).
+      devices: an int or a tuple of devices (hashable: it is static), see `query_pairs`.
       planes: half-spaces (a ground, walls): one HalfSpace, batched (P,) or not, or a list of
         them. They stay out of the broad phase; every shape is tested against each one at
         `level` (the result's `planes` field; groups and masks do not apply to them).
