@@ -16,7 +16,8 @@ import numpy as np
 
 import jaxsat
 
-__all__ = ["CASES", "DemoResult", "Scene", "make_scene", "plot_scenes", "run_case", "run_demo"]
+__all__ = ["CASES", "DemoResult", "PairDrawing", "Panel", "Scene", "choose_panels", "draw_scenes",
+           "make_scene", "pair_drawing", "plot_scenes", "run_case", "run_demo"]
 
 CASES: dict[str, str] = {
     "2d-polygons": "random convex polygons, 3-8 vertices padded to 8",
@@ -239,91 +240,280 @@ def format_report(results: list[DemoResult]) -> str:
     return "\n".join(lines)
 
 
-def _world(vertices: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    return vertices @ rotation.T + translation
+@dataclasses.dataclass(frozen=True)
+class PairDrawing:
+    """What the picture draws for one pair (world coordinates, float64 NumPy).
+
+    Colliding (penetration depth > 0): an arrow from `start`, the point of b deepest inside
+    a, to `end` = start + depth * normal, on a's surface: the smallest translation of b
+    that separates the pair (moving b by `end - start` leaves the two touching). Separated:
+    `start` and `end` are the closest points of a and b (`jaxsat.closest_points`), and
+    `value` is their Euclidean distance, which the SAT gap of `penetration` can under-state.
+    """
+
+    colliding: bool
+    value: float
+    """The depth (colliding) or the distance (separated), >= 0."""
+    start: np.ndarray
+    """(D,): colliding: the tail of the arrow, on b; separated: the closest point of a."""
+    end: np.ndarray
+    """(D,): colliding: the head of the arrow, on a; separated: the closest point of b."""
+
+    @property
+    def label(self) -> str:
+        return f"{'depth' if self.colliding else 'distance'} {self.value:.3f}"
+
+    @property
+    def shift(self) -> np.ndarray:
+        """How far the picture moves b for its dotted outline: the arrow (zero if separated)."""
+        return self.end - self.start if self.colliding else np.zeros_like(self.start)
 
 
-def _pair_arrays(scene: Scene, index: int):
-    """World vertices (valid only) of a and b, plus the hull edges for 3D shapes."""
-    out = []
-    for shape, pose in ((scene.a, scene.pose_a), (scene.b, scene.pose_b)):
-        vertices = np.asarray(shape.vertices[index])
-        mask = np.asarray(shape.vertex_mask[index])
-        world = _world(vertices, np.asarray(pose.rotation[index]),
-                       np.asarray(pose.translation[index]))
-        edges = np.asarray(shape.edge_endpoints[index])[np.asarray(shape.hull_edge_mask[index])]
-        out.append((world[mask], world, edges))
-    return out
+def pair_drawing(a: jaxsat.Polytope, pose_a: jaxsat.Pose, b: jaxsat.Polytope,
+                 pose_b: jaxsat.Pose) -> PairDrawing:
+    """The arrow or the closest points to draw for one (unbatched) pair; see `PairDrawing`."""
+    found = jaxsat.penetration(a, pose_a, b, pose_b)
+    closest = jaxsat.closest_points(a, pose_a, b, pose_b)
+    depth = float(found.depth)
+    if depth > 0:
+        # closest_points' point_b is where b is deepest inside a along the same axis.
+        start = np.asarray(closest.point_b, np.float64)
+        end = start + depth * np.asarray(found.normal, np.float64)
+        return PairDrawing(True, depth, start, end)
+    return PairDrawing(False, float(closest.signed_distance),
+                       np.asarray(closest.point_a, np.float64),
+                       np.asarray(closest.point_b, np.float64))
 
 
-def _pick(depths: np.ndarray, colliding: int, separated: int) -> list[int]:
-    hits = np.flatnonzero(depths > 0.05)[:colliding]
-    misses = np.flatnonzero(depths < -0.05)[:separated]
-    return [int(i) for i in np.concatenate([hits, misses])]
+@dataclasses.dataclass(frozen=True)
+class Panel:
+    """One panel of the picture: pair `index` of the scene of `case`, in row `row` (0: a
+    colliding pair, 1: a separated one) and column `column`."""
+
+    row: int
+    column: int
+    case: str
+    index: int | None
+    """None when the scene has no pair of the kind wanted (the panel says so)."""
+
+
+def _candidates(depths: np.ndarray, colliding: bool) -> np.ndarray:
+    """Pair indices worth drawing, readable ones first: a visible but modest overlap, or a
+    gap (SAT, so the distance is at least as large) neither tiny nor far beyond the shapes."""
+    if colliding:
+        preferred, fallback = (depths > 0.05) & (depths < 0.25), depths > 0
+    else:
+        preferred, fallback = (depths < -0.08) & (depths > -0.4), depths < 0
+    return np.concatenate([np.flatnonzero(preferred), np.flatnonzero(fallback & ~preferred)])
+
+
+def choose_panels(results: dict[str, DemoResult]) -> list[Panel]:
+    """The panels of `plot_scenes`: row 0 colliding pairs, row 1 separated pairs; two columns
+    of 2D pairs (three without 3D cases), then one column per 3D case."""
+    three_d = [case for case in ("3d-boxes", "3d-hulls") if case in results]
+    columns = [("2d-polygons", slot) for slot in range(3 if not three_d else 2)
+               if "2d-polygons" in results] + [(case, 0) for case in three_d]
+    panels = []
+    for row in (0, 1):
+        for column, (case, slot) in enumerate(columns):
+            picks = _candidates(results[case].depth_f64, colliding=row == 0)
+            index = int(picks[slot]) if slot < len(picks) else None
+            panels.append(Panel(row, column, case, index))
+    return panels
+
+
+def _item(tree, index: int):
+    """Entry `index` of a batched Polytope or Pose."""
+    return jax.tree.map(lambda leaf: leaf[index], tree)
+
+
+def _world_vertices(shape: jaxsat.Polytope, pose: jaxsat.Pose) -> np.ndarray:
+    """The real vertices of an unbatched shape, in the world frame (in ring order in 2D)."""
+    world = np.asarray(pose.apply(shape.vertices), np.float64)
+    return world[np.asarray(shape.vertex_mask)]
+
+
+def _world_faces(shape: jaxsat.Polytope, pose: jaxsat.Pose) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(vertex loop, outward unit normal) of every face of an unbatched 3D shape, in the world
+    frame. The shape stores one normal per face direction (`face_normals`, unique up to sign),
+    so both signs are tried: a face is the set of vertices extreme along a normal, if it has
+    at least three."""
+    corners = _world_vertices(shape, pose)
+    rotation = np.asarray(pose.rotation, np.float64)
+    normals = np.asarray(shape.face_normals, np.float64)[np.asarray(shape.face_mask)] @ rotation.T
+    tolerance = 1e-6 * (np.abs(corners - corners.mean(axis=0)).max() + 1e-12)
+    faces = []
+    for normal in np.concatenate([normals, -normals]):
+        heights = corners @ normal
+        loop = corners[heights >= heights.max() - tolerance]
+        if len(loop) >= 3:
+            offsets = loop - loop.mean(axis=0)
+            first = offsets[np.argmax(np.linalg.norm(offsets, axis=1))]
+            first = first / np.linalg.norm(first)
+            angles = np.arctan2(offsets @ np.cross(normal, first), offsets @ first)
+            faces.append((loop[np.argsort(angles)], normal))
+    return faces
+
+
+COLOURS = {"a": "#1f77b4", "b": "#ff7f0e"}
+"""Shape a blue, shape b orange, in every panel."""
+ROW_COLOURS = ("#b2182b", "#1b7837")
+"""Panel titles: colliding red, separated green."""
+
+
+def _shaded(colour: str, normal: np.ndarray, light: np.ndarray) -> tuple[float, ...]:
+    """`colour` lit by a directional light: ambient plus Lambert."""
+    from matplotlib.colors import to_rgb
+
+    brightness = 0.5 + 0.5 * max(float(normal @ light), 0.0)
+    return tuple(min(1.0, channel * brightness + 0.15 * (1 - brightness)) for channel in
+                 to_rgb(colour))
+
+
+def _camera(normal: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """(elevation, azimuth) in degrees of a view across `normal` (so that the arrow or the
+    witness segment lies nearly in the picture plane), and the unit view vector."""
+    elevation = 18.0
+    azimuth = np.degrees(np.arctan2(normal[1], normal[0])) - 90.0
+    if np.hypot(normal[0], normal[1]) < 0.3:  # nearly vertical: look from the side, a bit lower
+        elevation, azimuth = 8.0, -60.0
+    e, z = np.radians(elevation), np.radians(azimuth)
+    return elevation, azimuth, np.array([np.cos(e) * np.cos(z), np.cos(e) * np.sin(z),
+                                         np.sin(e)])
+
+
+def _title(panel: Panel, drawing: PairDrawing | None) -> tuple[str, str]:
+    """(title, colour) of a panel: the kind of pair its drawing shows (not its row, should a
+    pair near contact fall on the other side in float64), and the depth or distance."""
+    what = {"2d-polygons": "2D polygons", "3d-boxes": "3D boxes",
+            "3d-hulls": "3D hulls"}.get(panel.case, panel.case)
+    colliding = panel.row == 0 if drawing is None else drawing.colliding
+    kind, colour = ("colliding", ROW_COLOURS[0]) if colliding else ("separated", ROW_COLOURS[1])
+    if drawing is None:
+        return f"{what}: no {kind} pair", colour
+    return f"{what}, {kind} (pair {panel.index})\n{drawing.label}", colour
+
+
+def _draw_2d(axes, a_points, b_points, drawing: PairDrawing) -> None:
+    from matplotlib.patches import Polygon
+
+    for name, points in (("a", a_points), ("b", b_points)):
+        axes.add_patch(Polygon(points, closed=True, facecolor=COLOURS[name], alpha=0.45,
+                               edgecolor=COLOURS[name], lw=2))
+        axes.text(*points.mean(axis=0), name, ha="center", va="center", fontsize=13,
+                  fontweight="bold", color="0.15")
+    if drawing.colliding:
+        axes.add_patch(Polygon(b_points + drawing.shift, closed=True, fill=False,
+                               edgecolor="k", lw=1.2, linestyle=":"))
+        axes.annotate("", xy=drawing.end, xytext=drawing.start,
+                      arrowprops={"arrowstyle": "-|>", "color": "k", "lw": 2.2,
+                                  "mutation_scale": 20, "shrinkA": 0, "shrinkB": 0})
+    else:
+        segment = np.stack([drawing.start, drawing.end])
+        axes.plot(*segment.T, color="k", lw=1.5, marker="o", markersize=6)
+    points = np.concatenate([a_points, b_points, b_points + drawing.shift])
+    low, high = points.min(axis=0), points.max(axis=0)
+    middle, half = (low + high) / 2, 0.55 * (high - low).max()
+    axes.set(xlim=(middle[0] - half, middle[0] + half), ylim=(middle[1] - half, middle[1] + half),
+             aspect="equal", xticks=[], yticks=[])
+
+
+def _draw_3d(axes, shapes, drawing: PairDrawing) -> None:
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    direction = drawing.end - drawing.start
+    elevation, azimuth, view = _camera(direction / max(np.linalg.norm(direction), 1e-12))
+    light = view + np.array([0.0, 0.0, 0.8])
+    light = light / np.linalg.norm(light)
+    loops, colours, corners = [], [], []
+    for name, (shape, pose) in zip("ab", shapes, strict=True):
+        for loop, normal in _world_faces(shape, pose):
+            loops.append(loop)
+            colours.append((*_shaded(COLOURS[name], normal, light), 0.55))
+        corners.append(_world_vertices(shape, pose))
+    # One collection for both shapes, so that matplotlib depth-sorts all their faces together.
+    axes.add_collection3d(Poly3DCollection(loops, facecolors=colours, edgecolors=(0, 0, 0, 0.35),
+                                           linewidths=0.4))
+    axes.computed_zorder = False  # the arrow and the points stay on top of the faces
+    if drawing.colliding:
+        axes.quiver(*drawing.start, *direction, color="k", lw=2.5, arrow_length_ratio=0.4,
+                    zorder=5)
+        axes.scatter(*drawing.start, color="k", s=12, zorder=5, depthshade=False)
+    else:
+        segment = np.stack([drawing.start, drawing.end])
+        axes.plot(*segment.T, color="k", lw=1.5, zorder=5)
+        axes.scatter(*segment.T, color="k", s=30, zorder=6, depthshade=False)
+    for name, points in zip("ab", corners, strict=True):
+        axes.text(*points.mean(axis=0), name, fontsize=13, fontweight="bold", color="0.1",
+                  ha="center", va="center", zorder=7)
+    points = np.concatenate(corners)
+    low, high = points.min(axis=0), points.max(axis=0)
+    middle, half = (low + high) / 2, 0.5 * (high - low).max()
+    axes.set(xlim=(middle[0] - half, middle[0] + half), ylim=(middle[1] - half, middle[1] + half),
+             zlim=(middle[2] - half, middle[2] + half))
+    axes.set_box_aspect((1, 1, 1), zoom=1.3)
+    axes.view_init(elev=elevation, azim=azimuth)
+    axes.set_axis_off()
+
+
+def draw_scenes(scenes: dict[str, Scene], results: dict[str, DemoResult]):
+    """The demo's picture as a `matplotlib.figure.Figure` (see `plot_scenes`); needs
+    matplotlib. Each panel's title ends with its `PairDrawing.label`."""
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    panels = choose_panels(results)
+    columns = max(panel.column for panel in panels) + 1 if panels else 1
+    figure = Figure(figsize=(max(4 * columns, 9), 9.2 if columns >= 3 else 10),
+                    layout="constrained")
+    figure.suptitle("jaxsat: a few pairs of the demo's random scenes\nTop row: colliding pairs "
+                    "(jaxsat.penetration); bottom row: separated pairs (jaxsat.closest_points)",
+                    fontsize=12)
+    for panel in panels:
+        three_d = not panel.case.startswith("2d")
+        axes = figure.add_subplot(2, columns, panel.row * columns + panel.column + 1,
+                                  projection="3d" if three_d else None)
+        drawing = None
+        if panel.index is not None:
+            scene = scenes[panel.case]
+            shapes = [(_item(scene.a, panel.index), _item(scene.pose_a, panel.index)),
+                      (_item(scene.b, panel.index), _item(scene.pose_b, panel.index))]
+            drawing = pair_drawing(*shapes[0], *shapes[1])
+            if three_d:
+                _draw_3d(axes, shapes, drawing)
+            else:
+                _draw_2d(axes, *(_world_vertices(*shape) for shape in shapes), drawing)
+        else:
+            axes.set_axis_off()
+        title, colour = _title(panel, drawing)
+        axes.set_title(title, color=colour, fontsize=11)
+    handles = [
+        Patch(facecolor=COLOURS["a"], alpha=0.6, label="shape a"),
+        Patch(facecolor=COLOURS["b"], alpha=0.6, label="shape b"),
+        Line2D([], [], color="k", lw=2, marker=">", markevery=[1],
+               label="arrow: the smallest move of b that separates the pair (length = depth)"),
+        Line2D([], [], color="k", lw=1.2, linestyle=":",
+               label="dotted: b after that move (touching a)"),
+        Line2D([], [], color="k", lw=1.5, marker="o",
+               label="dots: closest points of a and b (segment length = distance)"),
+    ]
+    figure.legend(handles=handles, loc="outside lower center", ncol=3 if columns >= 3 else 1,
+                  fontsize=10,
+                  frameon=False)
+    return figure
 
 
 def plot_scenes(path: str, scenes: dict[str, Scene], results: dict[str, DemoResult]) -> str:
-    """Draw a few pairs with their normals; return the path written. Needs matplotlib."""
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Polygon
+    """Draw a few pairs of each scene and save the picture; return the path written. Needs
+    matplotlib.
 
-    colours = {True: ("#d62728", "#ff9896"), False: ("#2ca02c", "#98df8a")}
-    figure = Figure(figsize=(16, 8), layout="constrained")
-    has_3d = [case for case in ("3d-boxes", "3d-hulls") if case in scenes]
-    columns = 3 + (1 if has_3d else 0)
-    figure.suptitle("jaxsat.penetration: normal from a's centre, length |depth| "
-                    "(red: colliding, dotted outline: b moved by depth*normal; green: separated)")
-
-    if "2d-polygons" in scenes:
-        scene, result = scenes["2d-polygons"], results["2d-polygons"]
-        for slot, index in enumerate(_pick(result.depth_f64, 3, 3)):
-            axes = figure.add_subplot(2, columns, (slot // 3) * columns + slot % 3 + 1)
-            (a_pts, _, _), (b_pts, _, _) = _pair_arrays(scene, index)
-            depth, normal = float(result.depth_f64[index]), result.normal_f64[index]
-            edge, fill = colours[depth > 0]
-            axes.add_patch(Polygon(a_pts, closed=True, facecolor=fill, edgecolor=edge, lw=2))
-            axes.add_patch(Polygon(b_pts, closed=True, facecolor=fill, edgecolor=edge, lw=2,
-                                   alpha=0.6, hatch="//"))
-            if depth > 0:
-                axes.add_patch(Polygon(b_pts + depth * normal, closed=True, fill=False,
-                                       edgecolor="k", lw=1, linestyle=":"))
-            centre = a_pts.mean(axis=0)
-            axes.annotate("", xy=centre + abs(depth) * normal, xytext=centre,
-                          arrowprops={"arrowstyle": "->", "color": "k", "lw": 2})
-            axes.text(*a_pts.mean(axis=0), "a", ha="right", va="top")
-            axes.text(*b_pts.mean(axis=0), "b", ha="right", va="top")
-            axes.set_title(f"2D pair {index}: depth {depth:+.3f}", color=edge)
-            axes.set_aspect("equal")
-            axes.autoscale_view()
-            axes.margins(0.15)
-
-    for row, case in enumerate(has_3d[:2]):
-        scene, result = scenes[case], results[case]
-        index = _pick(result.depth_f64, 1, 0)
-        if not index:
-            continue
-        index = index[0]
-        axes = figure.add_subplot(2, columns, row * columns + columns, projection="3d")
-        depth, normal = float(result.depth_f64[index]), result.normal_f64[index]
-        edge, _ = colours[depth > 0]
-        for (_, world, edges), style in zip(_pair_arrays(scene, index), ("-", "--"),
-                                                strict=True):
-            for start, end in edges:
-                segment = world[[start, end]]
-                axes.plot(*segment.T, color=edge, linestyle=style, lw=1.2)
-        (a_pts, _, _), (b_pts, _, _) = _pair_arrays(scene, index)
-        centre = a_pts.mean(axis=0)
-        axes.quiver(*centre, *(abs(depth) * normal), color="k", lw=2)
-        points = np.concatenate([a_pts, b_pts, [centre + abs(depth) * normal]])
-        middle = (points.max(axis=0) + points.min(axis=0)) / 2
-        half = (points.max(axis=0) - points.min(axis=0)).max() / 2
-        axes.set(xlim=(middle[0] - half, middle[0] + half),
-                 ylim=(middle[1] - half, middle[1] + half),
-                 zlim=(middle[2] - half, middle[2] + half))
-        axes.set_title(f"{case} pair {index}: depth {depth:+.3f}\n(a solid, b dashed)",
-                       color=edge)
-        axes.set_box_aspect((1, 1, 1))
-    figure.savefig(path, dpi=90)
+    Top row, colliding pairs: the arrow, from b's deepest point in a, is the smallest
+    translation of b that separates the pair (length: the penetration depth), and a dotted
+    outline (2D) shows b moved by it. Bottom row, separated pairs: the closest points of a
+    and b, joined by a segment whose length, the Euclidean distance, the title gives.
+    """
+    draw_scenes(scenes, results).savefig(path, dpi=90)
     return path
 
 
