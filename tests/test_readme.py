@@ -54,6 +54,9 @@ def test_quickstart_commands():
     text = README.read_text()
     assert 'pip install -e ".[dev]" && python -m jaxsat demo' in text
     assert "python -m pytest" in text
+    quickstart = text.split("## Quickstart", 1)[1].split("\n## ", 1)[0]
+    assert "virtual environment" in quickstart and "python -m venv" in quickstart
+    assert re.search(r"\d+-\d+ minutes", quickstart), "say how long the tests take"
 
 
 @pytest.mark.slow
