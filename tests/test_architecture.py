@@ -49,3 +49,13 @@ def test_public_api_is_listed_once_in_all():
     assert set(jaxsat.__all__) <= set(names)
     modules = {"jaxsat"} | {path.stem for path in PACKAGE.glob("_*.py")}
     assert set(names) - set(jaxsat.__all__) <= modules | {"annotations"}
+
+
+def test_benchmarks_stay_small():
+    """The benchmark scripts stay at most 2,000 lines and their README at most 2,500 words
+    (counted as `wc -w` does), so that results and how to get them stay easy to find."""
+    benchmarks = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
+    lines = sum(len(path.read_text().splitlines()) for path in benchmarks.glob("*.py"))
+    words = len((benchmarks / "README.md").read_text().split())
+    assert lines <= 2000, f"benchmarks/*.py: {lines} lines"
+    assert words <= 2500, f"benchmarks/README.md: {words} words"
