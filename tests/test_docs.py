@@ -106,4 +106,9 @@ def test_site_builds_strictly_with_executed_notebooks(tmp_path, python3_kernel):
     assert jaxsat.penetration.__doc__.splitlines()[0].split(":")[0] in queries
     home = (site / "index.html").read_text()
     assert "Quickstart" in home
+    # mkdocs --strict lets a link to an excluded file through: check the pictures directly.
+    pictures = re.findall(r'<img [^>]*src="([^"]+)"', home)
+    assert len(pictures) >= 3, pictures
+    for source in pictures:
+        assert (site / source).is_file(), f"the home page shows {source}, not in the site"
     assert "On a GPU" in (site / "gpu" / "index.html").read_text()
