@@ -348,7 +348,9 @@ def test_random_pairs_with_margin(name):
 # --------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
+@pytest.mark.parametrize("dtype", [pytest.param(dtype, id=name, marks=(pytest.mark.slow,) if
+                                               name == "float64" else ())
+                                  for dtype, name in zip(DTYPES, DTYPE_IDS, strict=True)])
 def test_box_resting_on_larger_box(dtype):
     """4 points at the resting box's bottom corners, halfway into the overlap, with its depth;
     also with the roles swapped (the normal flips, the points stay)."""

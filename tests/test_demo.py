@@ -50,6 +50,7 @@ def test_demo_prints_every_case_and_saves_a_png(tmp_path, capsys):
         assert float(row["angle"]) < 1e-2, case
 
 
+@pytest.mark.slow  # runs the demo's 2D case
 def test_demo_without_matplotlib_explains_how_to_install_it(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # makes `import matplotlib` fail
     output = tmp_path / "demo.png"

@@ -208,3 +208,21 @@ def test_eager_calls_take_the_cpu_options_only_on_the_cpu():
     every eager query fail on an H100."""
     assert eager_compiler_options("cpu") == EAGER_COMPILER_OPTIONS
     assert eager_compiler_options("gpu") is None and eager_compiler_options("tpu") is None
+
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_support_gap_equals_numpy_without_a_reduction(dtype):
+    """A select chain over the vertices (rule 2): the value of NumPy's reductions, and no
+    reduce op in its batched program (a `jnp.min` over the vertex axis is a pass of its own,
+    which cost an exact 2D distance about as much as its SAT)."""
+    from jaxsat._closest import support_gap
+
+    rng = np.random.default_rng(7)
+    a, b = (rng.normal(size=(64, 8, 3)).astype(dtype) for _ in range(2))
+    axis = rng.normal(size=(64, 3)).astype(dtype)
+    gaps = np.einsum("nvd,nd->nv", b, axis).min(axis=1) - np.einsum(
+        "nvd,nd->nv", a, axis).max(axis=1)
+    np.testing.assert_allclose(jax.vmap(support_gap)(axis, a, b), gaps,
+                               rtol=8 * np.finfo(dtype).eps, atol=8 * np.finfo(dtype).eps)
+    assert "reduce" not in jax.jit(jax.vmap(support_gap)).lower(axis, a, b).as_text()

@@ -24,6 +24,7 @@ def _run_example(index: int, what: str) -> list[str]:
     return result.stdout.splitlines()
 
 
+@pytest.mark.slow  # a fresh interpreter compiles the example's queries: about 12 s
 def test_readme_example_runs():
     lines = _run_example(0, "python")
     assert lines[0].split()[0].startswith(("0.2", "0.19999")) and lines[0].endswith("[1. 0.]")

@@ -475,7 +475,8 @@ def test_same_padded_sizes_do_not_recompile():
     assert len(traces) == 2
 
 
-@pytest.mark.parametrize("name", ["poly8", "box", "hull8", "hull20"])
+@pytest.mark.parametrize("name", ["poly8", "box", "hull8",
+                                  pytest.param("hull20", marks=pytest.mark.slow)])
 def test_identical_shapes_at_identical_poses(name):
     """Each shape against itself at the same (random) pose: finite positive depth, unit normal."""
     rng = np.random.default_rng(20)

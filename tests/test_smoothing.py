@@ -611,7 +611,8 @@ def _path_pairs(shape_a, points_a, shape_b, points_b, params_a, params_b) -> Pai
                  np.zeros(count, int), params_a, params_b, np.float64)
 
 
-@pytest.mark.parametrize("name", ["poly8", "box", pytest.param("hull8", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("name", ["poly8", *(pytest.param(name, marks=pytest.mark.slow)
+                                            for name in ("box", "hull8"))])
 def test_value_is_one_lipschitz_along_translation_paths(name):
     """b slides along a straight line from clear separation through contact into deep
     overlap (its vertex centroid through a's) and out, in steps of 0.02: the smooth value
@@ -722,6 +723,7 @@ def test_kink_where_penetration_directions_tie_2d():
                                atol=1e-12)
 
 
+@pytest.mark.slow  # the 2D kink stays in the fast subset
 def test_kink_where_penetration_directions_tie_3d():
     """A small box turning about a fixed axis while overlapping a cube near its corner: a
     coarse sweep with the oracle finds where the exact normal switches, bisection pins it
