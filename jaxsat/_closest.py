@@ -105,7 +105,8 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     shift = jnp.maximum(sat.depth, 0.0) * sat.axis
     moved_b = b_vertices + shift
     eps = jnp.finfo(frame.dtype).eps
-    rounding = GJK_TOLERANCE * eps * (jnp.max(jnp.abs(a_vertices)) + jnp.max(jnp.abs(moved_b)))
+    rounding = GJK_TOLERANCE * eps * (k.largest_magnitude(a_vertices)
+                                      + k.largest_magnitude(moved_b))
     if frame.dim == 2:
         simplex = closest_pair_of_support_faces(a_vertices, frame.a.num_real_vertices,
                                                 moved_b, frame.b.num_real_vertices, sat.axis)

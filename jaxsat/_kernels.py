@@ -54,6 +54,7 @@ __all__ = [
     "cross2",
     "dot",
     "extremes",
+    "largest_magnitude",
     "explicit_float_dtype",
     "materialize",
     "orthonormal_basis",
@@ -295,6 +296,17 @@ def extremes(axes: list[jax.Array], points):
         low = p if low is None else where(p < low, p, low)
         high = p if high is None else where(p > high, p, high)
     return low, high
+
+
+def largest_magnitude(points):
+    """() max over the few points (V, D) of |coordinate|, by a select chain (rule 2): a
+    shape's extent, for tolerances, without a reduction pass over the vertex axis."""
+    largest = None
+    for v in range(points.shape[0]):
+        for k in range(points.shape[1]):
+            size = jnp.abs(points[v, k])
+            largest = size if largest is None else where(size > largest, size, largest)
+    return largest
 
 
 # --------------------------------------------------------------------------------------------

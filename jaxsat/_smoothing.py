@@ -340,7 +340,11 @@ def _maximiser(frame: PairFrame, tau):
     rounding = 64 * jnp.finfo(frozen.dtype).eps * (extent + jnp.abs(losses[0]))
     second = (losses[1] < losses[0] - rounding) | (
         (losses[1] <= losses[0] + rounding) & (slopes[1] < slopes[0]))
-    return where(second, axes[1], axes[0])
+    # Stored once (`_kernels` rule 5): at a tie the decision rests on rounding, and every
+    # component of the axis, in every consumer, must take the same one. Recomputed per
+    # consumer it can differ between them and mix the two axes (a's soft extreme along one
+    # mixture, b's along another), which puts the value far outside the bound.
+    return where(materialize(second), axes[1], axes[0])
 
 
 @_maximiser.defjvp

@@ -212,11 +212,12 @@ def test_eager_calls_take_the_cpu_options_only_on_the_cpu():
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_support_gap_equals_numpy_without_a_reduction(dtype):
-    """A select chain over the vertices (rule 2): the value of NumPy's reductions, and no
-    reduce op in its batched program (a `jnp.min` over the vertex axis is a pass of its own,
-    which cost an exact 2D distance about as much as its SAT)."""
+def test_support_gap_and_largest_magnitude_equal_numpy_without_a_reduction(dtype):
+    """Select chains over the vertices (rule 2): the values of NumPy's reductions, and no
+    reduce op in their batched programs (a `jnp.min` over the vertex axis is a pass of its
+    own, which cost an exact 2D distance about as much as its SAT)."""
     from jaxsat._closest import support_gap
+    from jaxsat._kernels import largest_magnitude
 
     rng = np.random.default_rng(7)
     a, b = (rng.normal(size=(64, 8, 3)).astype(dtype) for _ in range(2))
@@ -226,3 +227,5 @@ def test_support_gap_equals_numpy_without_a_reduction(dtype):
     np.testing.assert_allclose(jax.vmap(support_gap)(axis, a, b), gaps,
                                rtol=8 * np.finfo(dtype).eps, atol=8 * np.finfo(dtype).eps)
     assert "reduce" not in jax.jit(jax.vmap(support_gap)).lower(axis, a, b).as_text()
+    np.testing.assert_array_equal(jax.vmap(largest_magnitude)(a), np.abs(a).max(axis=(1, 2)))
+    assert "reduce" not in jax.jit(jax.vmap(largest_magnitude)).lower(a).as_text()
