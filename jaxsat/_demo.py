@@ -272,17 +272,15 @@ class PairDrawing:
 def pair_drawing(a: jaxsat.Polytope, pose_a: jaxsat.Pose, b: jaxsat.Polytope,
                  pose_b: jaxsat.Pose) -> PairDrawing:
     """The arrow or the closest points to draw for one (unbatched) pair; see `PairDrawing`."""
-    found = jaxsat.penetration(a, pose_a, b, pose_b)
     closest = jaxsat.closest_points(a, pose_a, b, pose_b)
-    depth = float(found.depth)
-    if depth > 0:
-        # closest_points' point_b is where b is deepest inside a along the same axis.
-        start = np.asarray(closest.point_b, np.float64)
-        end = start + depth * np.asarray(found.normal, np.float64)
-        return PairDrawing(True, depth, start, end)
-    return PairDrawing(False, float(closest.signed_distance),
-                       np.asarray(closest.point_a, np.float64),
-                       np.asarray(closest.point_b, np.float64))
+    distance = float(closest.signed_distance)
+    point_a, point_b = (np.asarray(point, np.float64) for point in (closest.point_a,
+                                                                   closest.point_b))
+    if distance < 0:
+        # Overlapping, point_b is b's point deepest inside a and point_a = point_b + depth *
+        # normal (the penetration normal): the arrow from one to the other is the move.
+        return PairDrawing(True, -distance, point_b, point_a)
+    return PairDrawing(False, distance, point_a, point_b)
 
 
 @dataclasses.dataclass(frozen=True)
