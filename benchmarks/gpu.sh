@@ -1,17 +1,18 @@
 #!/usr/bin/env bash
 # The GPU checks of the open issues, in one call on a machine with one NVIDIA GPU and JAX with
 # CUDA installed: the demo, the box kernel at 1e5-1e7 pairs, the peers' box rows (MJX on the
-# GPU, MuJoCo C on the host), the distance benchmark, and the fast test subset. Each step has its
+# GPU, MuJoCo C on the host), the distance benchmark and the peers' distance rows (MuJoCo C's
+# mj_geomDistance on the host), and the fast test subset. Each step has its
 # own time limit, so one that fails or runs long does not stop the others.
 #
 # Usage, from the repository root:  OUT=results-dir bash benchmarks/gpu.sh TAG [STEP ...]
-# STEP: demo, kernels, peers, distance, tests (default: all, in that order).
+# STEP: demo, kernels, peers, distance, peers-distance, tests (default: all, in that order).
 # Writes TAG-named result files (.json, .md, .png) and a test report into $OUT/results.tgz.
 # MuJoCo and MJX are optional: without them peers.py skips their rows.
 set -u
 tag="${1:-gpu}"
 shift
-steps=" ${*:-demo kernels peers distance tests} "
+steps=" ${*:-demo kernels peers distance peers-distance tests} "
 out="${OUT:-/tmp/jaxsat-gpu}"
 results="$out/results"
 mkdir -p "$results"
@@ -37,7 +38,10 @@ python3 -c "import jax, numpy; print('jax', jax.__version__, 'numpy', numpy.__ve
 [[ $steps == *" peers "* ]] && step 120 python3 benchmarks/peers.py --cases 3d-boxes \
     --methods jaxsat jaxsat-chunked mjx mujoco-collision \
     --sizes 100000 1000000 10000000 --max-call-seconds 5 --repeats 3 --output "$results/peers-boxes-$tag"
-[[ $steps == *" distance "* ]] && step 150 python3 benchmarks/distance.py --sizes 100000 1000000 --output "$results/distance-$tag"
+[[ $steps == *" distance "* ]] && step 330 python3 benchmarks/distance.py --sizes 100000 1000000 --output "$results/distance-$tag"
+[[ $steps == *" peers-distance "* ]] && step 150 python3 benchmarks/peers.py --cases 3d-boxes 3d-hulls \
+    --methods jaxsat-distance mujoco-distance --sizes 10000 100000 1000000 --max-call-seconds 5 \
+    --repeats 3 --output "$results/peers-distance-$tag"
 [[ $steps == *" tests "* ]] && step 150 python3 -m pytest -m "not slow" -n 8 -p no:cacheprovider -q -ra \
     --junitxml="$results/tests-fast-$tag.xml"
 
