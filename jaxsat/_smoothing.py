@@ -87,56 +87,78 @@ def _soft_max(projections, mask, tau):
     return top + tau * jnp.log(jnp.sum(terms))
 
 
-class _Summary(NamedTuple):
-    """What the search needs of both shapes' vertices, set up once: centred vertices of a
-    and of b stacked (b's negated, so that both soft extremes are soft maxima), and per vertex
-    the features [1, x, x x'] whose softmax-weighted sums give every moment in one pass."""
+class _Side(NamedTuple):
+    """What the search needs of one shape's vertices, set up once: the vertices centred on one
+    of them (b's negated, so that both soft extremes are soft maxima) and per vertex the
+    features [1, x, x x'] whose softmax-weighted sums give every moment in one pass."""
 
     points: jax.Array
-    """(V_a + V_b, D) float: a's vertices minus a's centre; minus (b's minus b's centre)."""
-    offsets: jax.Array
-    """(2, D) float: a's centre and minus b's centre (projections add axis . offset)."""
+    """(V, D) float: the vertices minus the centre (b: minus that)."""
+    offset: jax.Array
+    """(D,) float: the centre (b: minus it); projections add axis . offset."""
     features: jax.Array
-    """(V_a + V_b, K) float: 1, the point's coordinates, the upper triangle of x x'."""
+    """(V, K) float: 1, the point's coordinates, the upper triangle of x x'."""
     mask: jax.Array
-    """(2, V_a + V_b) bool: real vertices of a (row 0) and of b (row 1)."""
+    """(V,) bool: real vertices."""
 
 
-def _summary(frame: PairFrame) -> _Summary:
-    a, b_vertices = frame.a, frame.b_vertices
-    # Centred on one vertex each, so that far-apart shapes lose no digits in the moments.
-    centre_a, centre_b = a.vertices[0], b_vertices[0]
-    points = jnp.concatenate([a.vertices - centre_a, -(b_vertices - centre_b)])
+class _Summary(NamedTuple):
+    """Both shapes' `_Side`s: a's, and b's negated."""
+
+    a: _Side
+    b: _Side
+
+    @property
+    def offsets(self) -> jax.Array:
+        """(2, D) float: a's centre and minus b's centre."""
+        return jnp.stack([self.a.offset, self.b.offset])
+
+    @property
+    def extent(self) -> jax.Array:
+        """() float: the largest centred coordinate of either shape."""
+        return jnp.maximum(jnp.max(jnp.abs(self.a.points)), jnp.max(jnp.abs(self.b.points)))
+
+
+def _side(vertices, mask, sign: float) -> _Side:
+    # Centred on one vertex, so that far-apart shapes lose no digits in the moments.
+    centre = vertices[0]
+    points = sign * (vertices - centre)
     dim = points.shape[-1]
     features = jnp.stack([jnp.ones_like(points[:, 0]), *(points[:, k] for k in range(dim)),
                           *(points[:, k] * points[:, m] for k, m in _upper(dim))], axis=-1)
-    side = jnp.arange(points.shape[0]) >= a.vertices.shape[0]
-    real = jnp.concatenate([a.vertex_mask, frame.b.vertex_mask])
-    return _Summary(points, jnp.stack([centre_a, -centre_b]), features,
-                    jnp.stack([real & ~side, real & side]))
+    return _Side(points, sign * centre, features, mask)
+
+
+def _summary(frame: PairFrame) -> _Summary:
+    return _Summary(_side(frame.a.vertices, frame.a.vertex_mask, 1.0),
+                    _side(frame.b_vertices, frame.b.vertex_mask, -1.0))
 
 
 def _upper(dim: int) -> list[tuple[int, int]]:
     return [(k, m) for k in range(dim) for m in range(k, dim)]
 
 
-def _packed_moments(summary: _Summary, axis: Vec, tau) -> jax.Array:
-    """(2, K + 1): per shape, its soft extreme (tau log sum exp of its projections) and the
-    softmax-weighted sums of the features: three passes over a batch (the maxima, the
+def _side_moments(side: _Side, axis: Vec, tau) -> jax.Array:
+    """(K + 1,): the side's soft extreme (tau log sum exp of its projections) and the
+    softmax-weighted sums of its features: three passes over a batch (the maximum, the
     weights, stored because every sum reads them, and the sums in one reduction)."""
-    projections = sum(summary.points[:, k] * axis[k] for k in range(len(axis)))
-    top = jnp.max(where(summary.mask, projections, -jnp.inf), axis=1)
-    shifted = where(summary.mask, projections - top[:, None], 0.0)
-    weights = materialize(where(summary.mask, jnp.exp(shifted / tau), 0.0))
-    sums = jnp.sum(weights[:, :, None] * summary.features[None], axis=1)
-    soft = top + tau * jnp.log(sums[:, 0]) + sum(summary.offsets[:, k] * axis[k]
-                                                 for k in range(len(axis)))
-    return jnp.concatenate([soft[:, None], sums], axis=1)
+    projections = sum(side.points[:, k] * axis[k] for k in range(len(axis)))
+    top = jnp.max(where(side.mask, projections, -jnp.inf))
+    shifted = where(side.mask, projections - top, 0.0)
+    weights = materialize(where(side.mask, jnp.exp(shifted / tau), 0.0))
+    sums = jnp.sum(weights[:, None] * side.features, axis=0)
+    soft = top + tau * jnp.log(sums[0]) + sum(side.offset[k] * axis[k] for k in range(len(axis)))
+    return jnp.concatenate([soft[None], sums])
+
+
+def _packed_moments(summary: _Summary, axis: Vec, tau) -> jax.Array:
+    """(2, K + 1): `_side_moments` of a (row 0) and of b negated (row 1)."""
+    return jnp.stack([_side_moments(summary.a, axis, tau), _side_moments(summary.b, axis, tau)])
 
 
 def _unpack(summary: _Summary, packed) -> _Moments:
     """The scalar-form _Moments of soft_gap from `_packed_moments`' output."""
-    dim = summary.points.shape[-1]
+    dim = summary.a.points.shape[-1]
     total = (packed[0, 1], packed[1, 1])
     mean = [[packed[s, 2 + k] / total[s] for k in range(dim)] for s in (0, 1)]
     spread = [[None] * dim for _ in range(dim)]
@@ -256,7 +278,7 @@ def _search(frame: PairFrame, tau, start):
     stretch and the axis's moments in one packed array (`_packed_moments`), and everything
     between two packed moments is scalar arithmetic, so a step is a few passes over a batch."""
     summary = _summary(frame)
-    extent = jnp.max(jnp.abs(summary.points))
+    extent = summary.extent
     rounding = 16 * jnp.finfo(frame.dtype).eps * (extent + jnp.max(jnp.abs(summary.offsets)))
     eps = jnp.finfo(frame.dtype).eps
 
