@@ -51,9 +51,11 @@ from jaxsat._shapes import Polytope
 
 __all__ = ["NEWTON_STEPS", "smooth_signed_distance", "smoothing_error_bound"]
 
-NEWTON_STEPS = 12
-"""Trust-region Newton steps from each start (with 8, 0.1% of random 2D pairs at tau = 1% of
-their size end more than 1e-4 radians from the maximum)."""
+NEWTON_STEPS = 10
+"""Trust-region Newton steps from each start. At tau = 0.005 (1% of the shapes' size), 10
+steps bring 2e4 random 2D pairs, 1e4 box pairs and 5e3 20-vertex hull pairs within 2e-8 rad
+of the maximiser 40 steps find in float64 (all within 1e-12 but one box pair), and within
+7e-7 rad in float32; 8 steps leave up to 5e-4 rad."""
 
 _FIRST_RADIUS = 4.0
 """The first trust radius, in units of tau / (the pair's extent): the angle over which the
@@ -312,8 +314,14 @@ def _search(frame: PairFrame, tau, start):
         tail = plain & (ratio > 1.1) & (length < 0.99 * radius)
         shrink = plain & (ratio < 0.25)
         grow = plain & (ratio > 0.75) & (length > 0.99 * radius)
-        bits = [flag.astype(jnp.int32) for flag in (better, better & (tail | ~plain), shrink,
-                                                     grow)]
+        # Stretching goes on only while soft_gap still rises along the way at the trial (its
+        # gradient there has a positive part along the travel, in the tangent plane): past
+        # the maximum, a stretched step would overshoot further and be rejected.
+        travel = kernels.vsub(trial, axis)
+        ahead = (kernels.vdot(trial_moments.gradient, travel) - kernels.vdot(travel, trial)
+                 * kernels.vdot(trial_moments.gradient, trial)) > 0
+        bits = [flag.astype(jnp.int32) for flag in (better, better & (tail | ~plain) & ahead,
+                                                     shrink, grow)]
         code = kernels.materialize(bits[0] + 2 * bits[1] + 4 * bits[2] + 8 * bits[3])
         better, stretch_more = code % 2 == 1, (code // 2) % 2 == 1
         shrink, grow = (code // 4) % 2 == 1, (code // 8) % 2 == 1
