@@ -52,6 +52,8 @@ from harness import (
 from scipy.spatial.transform import Rotation
 
 import jaxsat
+from jaxsat import _smoothing as smoothing
+from jaxsat._pair import pair_frame
 
 # --------------------------------------------------------------------------------------------
 # The smooth value as a function of vertices and pose parameters, batched and jitted.
@@ -397,6 +399,32 @@ def test_convergence_as_tau_shrinks():
         assert worst[0] > 1e-3, worst  # the smoothing is visible at tau = 0.1 size
         assert worst[3] < 0.05 * worst[1], worst
         assert np.all(worst[1:] <= worst[:-1] / 3 + 1e-12), worst
+
+
+def _maximisers(pairs: Pairs, tau: float, monkeypatch, steps: int) -> np.ndarray:
+    """The smooth distance's maximising axes (a's frame) after `steps` Newton steps."""
+    monkeypatch.setattr(smoothing, "NEWTON_STEPS", steps)
+    search = jax.jit(jax.vmap(lambda a, pa, b, pb: smoothing._maximiser(
+        pair_frame(a, make_pose(pa), b, make_pose(pb)), np.asarray(tau, pairs.dtype))),
+        compiler_options=FAST_COMPILE)  # a new function: traced with `steps`
+    return np.asarray(search(*pairs.inputs()), np.float64)
+
+
+@pytest.mark.parametrize("name", ["poly8", pytest.param("box", marks=pytest.mark.slow)])
+def test_the_newton_steps_reach_the_maximiser_of_a_long_search(name, monkeypatch):
+    """float32, tau = 0.5% of the size, 4096 random pairs: on the pairs that are apart (where
+    the maximiser is unique; overlapping, two maxima can tie and either may win), the
+    NEWTON_STEPS steps from each start end within 2e-6 rad of where 40 steps end. (A
+    stretched step that overshot the maximum once left pairs up to 1e-4 rad away.)"""
+    shapes = pool(name, np.float32)
+    pairs = random_pairs(shapes, shapes, 4096, np.random.default_rng(71), np.float32)
+    apart = ~np.asarray(jax.jit(jax.vmap(lambda a, pa, b, pb: jaxsat.intersects(
+        a, make_pose(pa), b, make_pose(pb))))(*pairs.inputs()))
+    assert apart.mean() > 0.4
+    found = _maximisers(pairs, 0.005, monkeypatch, smoothing.NEWTON_STEPS)
+    reference = _maximisers(pairs, 0.005, monkeypatch, 40)
+    gaps = np.linalg.norm(found - reference, axis=1)[apart]
+    assert np.max(gaps) < 2e-6, (np.max(gaps), int(np.sum(gaps >= 2e-6)))
 
 
 @pytest.mark.slow
