@@ -488,7 +488,8 @@ def test_identical_shapes_at_identical_poses(name):
     assert np.all(depth > 0) and np.all(hits)
 
 
-@pytest.mark.parametrize("name", ["box", "hull8", "hull20"])
+@pytest.mark.parametrize("name", ["box", "hull8",
+                                  pytest.param("hull20", marks=pytest.mark.slow)])
 def test_translated_copies(name):
     """Each 3D shape against a translated copy of itself, both unrotated.
 

@@ -410,7 +410,8 @@ def _maximisers(pairs: Pairs, tau: float, monkeypatch, steps: int) -> np.ndarray
     return np.asarray(search(*pairs.inputs()), np.float64)
 
 
-@pytest.mark.parametrize("name", ["poly8", pytest.param("box", marks=pytest.mark.slow)])
+@pytest.mark.slow  # two searches compiled per case: the fast subset stays under 2 minutes
+@pytest.mark.parametrize("name", ["poly8", "box"])
 def test_the_newton_steps_reach_the_maximiser_of_a_long_search(name, monkeypatch):
     """float32, tau = 0.5% of the size, 4096 random pairs: on the pairs that are apart (where
     the maximiser is unique; overlapping, two maxima can tie and either may win), the
