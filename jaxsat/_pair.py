@@ -136,9 +136,9 @@ EAGER_COMPILER_OPTIONS = {
 }
 """XLA's cheaper CPU settings, for the one-pair programs of eager calls: they compile a first
 call 2-2.7x faster (box pair, exact distance: 2.5 -> 1.4 s on 2 cores) and a warm call stays
-under a millisecond (the slowest, the smooth distance of two 20-vertex hulls, 0.7 ms on a
-2-core Xeon). A user's own `jit` keeps its options: JAX takes compiler
-options only from the outermost jit. CPU only: other backends reject these option names."""
+under a millisecond (0.05-0.75 ms on a 2-core Xeon, pairs of 20-vertex hulls the slowest). A
+user's own `jit` keeps its options: JAX takes compiler options only from the outermost jit.
+CPU only: other backends reject these option names."""
 
 
 def eager_compiler_options(backend: str) -> dict | None:
@@ -200,17 +200,17 @@ def compiled_query(check, static_argnames=(), name=None):
         compiled_on = {}  # backend name -> jitted function, built at the first eager call
         signature = inspect.signature(function)
 
-        @functools.wraps(function)  # keeps the signature, for jit's static_argnames
-        def guarded(*args, **kwargs):
-            return guard_non_finite(name or function.__name__, signature, function, args, kwargs)
+        def guard(named_errors: bool):
+            @functools.wraps(function)  # keeps the signature, for jit's static_argnames
+            def guarded(*args, **kwargs):
+                return guard_non_finite(name or function.__name__, signature, function, args,
+                                        kwargs, named_errors)
+            return guarded
 
         # An eager call's jit is never under checkify (checkify traces, so its arguments
         # would be tracers): it leaves out `debug_check`, whose effect would send every call
         # through jit's Python path (0.3 ms a call instead of 0.05 for a box pair).
-        @functools.wraps(function)
-        def guarded_eager(*args, **kwargs):
-            return guard_non_finite(name or function.__name__, signature, function, args, kwargs,
-                                    named_errors=False)
+        guarded, guarded_eager = guard(named_errors=True), guard(named_errors=False)
 
         @functools.wraps(function)
         def query(*args, **kwargs):

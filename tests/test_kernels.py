@@ -211,7 +211,6 @@ def test_eager_calls_take_the_cpu_options_only_on_the_cpu():
     assert eager_compiler_options("gpu") is None and eager_compiler_options("tpu") is None
 
 
-
 def _compiled_queries() -> dict:
     """Every function `compiled_query` made, by name (signed_distance has two: exact, smooth)."""
     found = {}
