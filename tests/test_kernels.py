@@ -131,6 +131,21 @@ def test_materialize_keeps_integers_and_booleans():
     np.testing.assert_array_equal(stored_flags, flags)
 
 
+def test_materialize_has_the_identity_derivative_and_adds_no_operations_to_it():
+    """Forward and reverse derivatives pass through unchanged, and the tangent takes no
+    operation of its own (JAX differentiates the running maximum through an associative
+    scan: about 40 operations per stored leaf in every gradient program)."""
+    x = jnp.array([0.5, -2.0, 3.0], jnp.float32)
+    tangent = jnp.array([1.0, 2.0, -1.0], jnp.float32)
+    value, moved = jax.jvp(materialize, (x,), (tangent,))
+    np.testing.assert_array_equal(value, x)
+    np.testing.assert_array_equal(moved, tangent)
+    gradient = jax.grad(lambda v: jnp.sum(materialize(v) * jnp.arange(3.0, dtype=v.dtype)))(x)
+    np.testing.assert_array_equal(gradient, [0.0, 1.0, 2.0])
+    linear = jax.linearize(materialize, x)[1]
+    assert len(jax.make_jaxpr(linear)(tangent).eqns) <= 1
+
+
 def _segment_cases(rng) -> list[tuple[str, np.ndarray]]:
     """(name, (4, 3) array a0, a1, b0, b1): random, crossing, nearly parallel (apart, and
     crossing at a small angle), parallel, point and segment, two points."""
