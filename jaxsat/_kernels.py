@@ -146,15 +146,16 @@ def propagate_non_finite(outputs, inputs):
 def _non_finite_poison(*floats):
     """The guard of `propagate_non_finite`: one jitted call, so that an eager gradient (which
     runs a query op by op) dispatches it once rather than two operations per input entry."""
-    entries = [entry for leaf in floats for entry in leaf.reshape(-1)]
     with jax.numpy_dtype_promotion("standard"):  # a float64 smoothing with float32 shapes
-        dtype = jnp.result_type(*entries)
-    return _nan_if_non_finite(*[entry.astype(dtype) for entry in entries])
+        dtype = jnp.result_type(*floats)
+    return _nan_if_non_finite(*[leaf.astype(dtype) for leaf in floats])
 
 
 @jax.custom_jvp
-def _nan_if_non_finite(*entries):
-    """sum(0 * x) over the entries, stored once (rule 5): 0, or NaN once one is NaN or inf."""
+def _nan_if_non_finite(*leaves):
+    """sum(0 * x) over every entry of the leaves, entry by entry (rule 2) and stored once
+    (rule 5): 0, or NaN once one is NaN or inf."""
+    entries = [entry for leaf in leaves for entry in leaf.reshape(-1)]
     return materialize(sum(entry * jnp.zeros((), entry.dtype) for entry in entries))
 
 
@@ -162,8 +163,10 @@ def _nan_if_non_finite(*entries):
 def _nan_if_non_finite_jvp(primals, tangents):
     # d poison / d x = poison for every entry x: 0, or NaN. A rule rather than a second
     # chain of products in the value (stop_gradient(p) * tiny * x): one chain, stored once.
+    # Whole leaves, not entries: a gradient then spreads the cotangent over each leaf in one
+    # broadcast, where slicing entries out of a leaf takes a pad and an add per entry.
     poison = _nan_if_non_finite(*primals)
-    return poison, poison * sum(tangents)
+    return poison, poison * sum(jnp.sum(tangent) for tangent in tangents)
 
 
 def project(axes, points):
