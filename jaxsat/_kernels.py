@@ -11,7 +11,9 @@ and "Distance"); breaking one typically costs 2x or more.
    `jnp.linalg`: a batched (V, 3) @ (3, 3) becomes a `dot_general` that XLA does not fuse
    with its neighbours, while the spelled-out sums are elementwise and fuse into one pass.
    Where many axes meet few points, keep the axes as D separate arrays (C,) rather than one
-   stacked (C, D) array, so every step stays elementwise.
+   stacked (C, D) array, so every step stays elementwise. Take the components with
+   `columns` (one operation, and one in a gradient) rather than a slice each: compile time
+   grows with the operation count.
 2. **Few reductions over long axes.** A reduce op is a separate pass that its consumers do
    not fuse with. Over a handful of entries, a Python loop of selects (`extremes`,
    `support_point`) fuses; a 2-D array of depths is reduced row by row and then once more.
@@ -50,6 +52,7 @@ import jax.numpy as jnp
 
 __all__ = [
     "chord",
+    "columns",
     "cross",
     "cross2",
     "dot",
@@ -97,6 +100,13 @@ def explicit_float_dtype(dtype) -> jnp.dtype:
                          f"{stored}): call jax.config.update('jax_enable_x64', True) first, or "
                          "set JAX_ENABLE_X64=1")
     return stored
+
+
+def columns(x) -> list[jax.Array]:
+    """The D components of (..., D) arrays, (...) each: one `unstack`, whose derivative is one
+    `stack`, where D slices take a slice and a squeeze each and their derivative a pad per
+    component and the adds between them (compile time grows with the operation count)."""
+    return list(jnp.unstack(x, axis=-1))
 
 
 def where(condition, x, y):
@@ -155,7 +165,7 @@ def _non_finite_poison(*floats):
 def _nan_if_non_finite(*leaves):
     """sum(0 * x) over every entry of the leaves, entry by entry (rule 2) and stored once
     (rule 5): 0, or NaN once one is NaN or inf."""
-    entries = [entry for leaf in leaves for entry in leaf.reshape(-1)]
+    entries = [entry for leaf in leaves for entry in jnp.unstack(leaf.reshape(-1))]
     return materialize(sum(entry * jnp.zeros((), entry.dtype) for entry in entries))
 
 
@@ -171,30 +181,31 @@ def _nan_if_non_finite_jvp(primals, tangents):
 
 def project(axes, points):
     """(C, D) axes . (V, D) points -> (C, V), in component form (rule 1)."""
-    return sum(axes[:, None, k] * points[None, :, k] for k in range(axes.shape[-1]))
+    return sum(axis[:, None] * coordinate[None, :]
+               for axis, coordinate in zip(columns(axes), columns(points), strict=True))
 
 
 def rotate(rotation, points):
     """rotation @ p for (..., D) points, in component form (rule 1)."""
-    return jnp.stack([sum(rotation[r, k] * points[..., k] for k in range(points.shape[-1]))
-                      for r in range(rotation.shape[0])], axis=-1)
+    coordinates = columns(points)
+    return jnp.stack([sum(entry * coordinate for entry, coordinate in
+                          zip(jnp.unstack(row), coordinates, strict=True))
+                      for row in jnp.unstack(rotation)], axis=-1)
 
 
 def dot(x, y):
     """x . y over the last axis, (...)."""
-    return sum(x[..., k] * y[..., k] for k in range(x.shape[-1]))
+    return sum(a * b for a, b in zip(columns(x), columns(y), strict=True))
 
 
 def cross(x, y):
     """3D cross product over the last axis, (..., 3)."""
-    return jnp.stack([x[..., 1] * y[..., 2] - x[..., 2] * y[..., 1],
-                      x[..., 2] * y[..., 0] - x[..., 0] * y[..., 2],
-                      x[..., 0] * y[..., 1] - x[..., 1] * y[..., 0]], axis=-1)
+    return jnp.stack(vcross(columns(x), columns(y)), axis=-1)
 
 
 def cross2(x, y):
     """2D cross product (a scalar per pair of vectors) over the last axis, (...)."""
-    return x[..., 0] * y[..., 1] - x[..., 1] * y[..., 0]
+    return vcross2(columns(x), columns(y))
 
 
 def chord(x, y):
@@ -294,8 +305,9 @@ def extremes(axes: list[jax.Array], points):
     arrays (C,): a select chain over the few points (rules 1-3), so a tie sends the whole
     gradient to one point."""
     low = high = None
+    rows = as_vecs(points)
     for v in range(points.shape[0]):
-        p = sum(axis * points[v, k] for k, axis in enumerate(axes))
+        p = sum(axis * coordinate for axis, coordinate in zip(axes, rows[v], strict=True))
         low = p if low is None else where(p < low, p, low)
         high = p if high is None else where(p > high, p, high)
     return low, high
@@ -305,9 +317,10 @@ def largest_magnitude(points):
     """() max over the few points (V, D) of |coordinate|, by a select chain (rule 2): a
     shape's extent, for tolerances, without a reduction pass over the vertex axis."""
     largest = None
+    rows = as_vecs(points)
     for v in range(points.shape[0]):
         for k in range(points.shape[1]):
-            size = jnp.abs(points[v, k])
+            size = jnp.abs(rows[v][k])
             largest = size if largest is None else where(size > largest, size, largest)
     return largest
 
@@ -323,13 +336,15 @@ Vec = tuple
 
 
 def as_vec(vector) -> Vec:
-    """A (D,) array as a Vec."""
+    """A (D,) array as a Vec. Sliced rather than `columns`: a search's loop state goes
+    through here every step, and there the unstack ran the 2D smooth search 5-10% slower."""
     return tuple(vector[i] for i in range(vector.shape[-1]))
 
 
 def as_vecs(points) -> list[Vec]:
     """(V, D) points as a list of V Vecs."""
-    return [as_vec(points[v]) for v in range(points.shape[0])]
+    return [tuple(row) for row in zip(*(jnp.unstack(column) for column in columns(points)),
+                                      strict=True)]
 
 
 def vadd(x: Vec, y: Vec) -> Vec:
