@@ -172,12 +172,11 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
         # One stored int: the new support pair, negative (-1 - pair) when the distance is
         # already known: |v| - v.w / |v| bounds its error, and |v|^2 - v.w is that times |v|.
         new_pair = support_pair(v)
-        w = point_of(new_pair)
+        w = k.materialize(point_of(new_pair))
         known = (squared - k.vdot(v, w) <= tolerance * jnp.sqrt(squared)) | (
             squared <= tolerance * tolerance)
         new_pair = k.materialize(k.where(known, -1 - new_pair, new_pair))
         known, new_pair = new_pair < 0, k.where(new_pair < 0, -1 - new_pair, new_pair)
-        w = k.materialize(point_of(new_pair))
         # One stored int: the nearest face holding w (its index in `faces`), -1 when it
         # brings v closer by less than the tolerance (rounding: stop, or it may cycle).
         used = [pair >= 0 for pair in state.pairs[:dim]]
