@@ -117,7 +117,10 @@ def where(condition, x, y):
     if x.dtype != y.dtype:
         dtype = jnp.result_type(x, y)
         x, y = x.astype(dtype), y.astype(dtype)
-    return jax.lax.select(*jnp.broadcast_arrays(condition, x, y))
+    condition = jnp.asarray(condition)
+    if not condition.shape == x.shape == y.shape:  # jnp.broadcast_arrays is a nested jit too
+        condition, x, y = jnp.broadcast_arrays(condition, x, y)
+    return jax.lax.select(condition, x, y)
 
 
 def propagate_non_finite(outputs, inputs):
