@@ -102,8 +102,8 @@ def pose3(translation, quaternion_wxyz) -> Pose:
     nonzero = ~(squared_norm <= jnp.finfo(quaternion.dtype).tiny)
     # Double `where`: the untaken branch must not divide by zero, or its gradient is NaN.
     safe = where(nonzero, quaternion, jnp.array([1, 0, 0, 0], quaternion.dtype))
-    # One unstack and one stack (not an index per entry and jnp.array of scalars): a few
-    # operations in every query's program and gradient instead of about 200.
+    # One unstack and one stack, not an index per entry and jnp.array of scalars: fewer
+    # operations in every 3D query's program (a batched pose gradient: 169 instead of 211).
     w, x, y, z = jnp.unstack(safe / jnp.sqrt(jnp.sum(safe**2)))
     rotation = jnp.stack([
         1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
