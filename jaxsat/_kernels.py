@@ -440,6 +440,6 @@ def _stored_float(leaf):
 @_stored_float.defjvp
 def _stored_float_jvp(primals, tangents):
     # The identity's derivative. JAX differentiates cummax through an associative scan: 18
-    # operations per stored leaf in a linearised program (a fifth of a hull contact
+    # operations per stored leaf in a linearised program (a sixth of a hull contact
     # manifold's value+grad program); the stored value's derivative needs none of them.
     return _stored_float(primals[0]), tangents[0]
