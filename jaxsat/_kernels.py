@@ -192,8 +192,8 @@ def rotate(rotation, points):
     """rotation @ p for (..., D) points, in component form (rule 1)."""
     coordinates = columns(points)
     return jnp.stack([sum(entry * coordinate for entry, coordinate in
-                          zip(jnp.unstack(row), coordinates, strict=True))
-                      for row in jnp.unstack(rotation)], axis=-1)
+                          zip(row, coordinates, strict=True))
+                      for row in as_vecs(rotation)], axis=-1)
 
 
 def dot(x, y):
