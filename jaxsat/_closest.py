@@ -105,8 +105,11 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     shift = jnp.maximum(sat.depth, 0.0) * sat.axis
     moved_b = b_vertices + shift
     eps = jnp.finfo(frame.dtype).eps
-    rounding = GJK_TOLERANCE * eps * (k.largest_magnitude(a_vertices)
-                                      + k.largest_magnitude(moved_b))
+    # Stored (`_kernels` rule 5), as is witness_gap below: the search and every choice after
+    # it read them, and XLA copied their select chains over the vertices into each reader
+    # (five copies of this one in a batched hull distance's program).
+    rounding = k.materialize(GJK_TOLERANCE * eps * (k.largest_magnitude(a_vertices)
+                                                    + k.largest_magnitude(moved_b)))
     if frame.dim == 2:
         simplex = closest_pair_of_support_faces(a_vertices, frame.a.num_real_vertices,
                                                 moved_b, frame.b.num_real_vertices, sat.axis)
@@ -116,7 +119,8 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     witness_b = witness(simplex.weights, moved_b, simplex.index_b)
     witness_axis, found = k.safe_normalize(witness_b - witness_a, 0.0)
     witness_axis = k.where(found, witness_axis, sat.axis)
-    sat_gap, witness_gap = -sat.depth, support_gap(witness_axis, a_vertices, b_vertices)
+    sat_gap = -sat.depth
+    witness_gap = k.materialize(support_gap(witness_axis, a_vertices, b_vertices))
     # Apart, at a near-tie (a closest-feature switch) the gap is flat in the axis, so a gap
     # within rounding of the best can come from an axis sqrt(rounding) off: prefer the
     # witness axis there, whose direction is accurate to rounding (the gradient uses it).

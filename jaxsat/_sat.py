@@ -23,9 +23,11 @@ import jax
 import jax.numpy as jnp
 
 from jaxsat._kernels import (
+    columns,
     cross,
     dot,
     extremes,
+    materialize,
     project,
     rotate,
     safe_normalize,
@@ -341,10 +343,15 @@ def sat_search(frame: PairFrame, prune: bool = True) -> SatAxis:
         # round it differently in `GaussMapAxes.axis` than in the depth (it did for batches
         # over about 1,400 pairs), which turned the axis around and gave the depth
         # s(-u) = width + gap instead of s(u).
-        along = _support(axis, frame.a.vertices) + _support(-axis, frame.b_vertices)
-        against = _support(-axis, frame.a.vertices) + _support(axis, frame.b_vertices)
-        turned = against < along
-        depth = where(turned, against, along)
+        axes = columns(axis)
+        low_a, high_a = extremes(axes, frame.a.vertices)
+        low_b, high_b = extremes(axes, frame.b_vertices)
+        along, against = high_a - low_b, high_b - low_a
+        # Stored (`_kernels` rule 5): every later stage reads the depth and the axis, and
+        # would otherwise recompute both select chains in each of its passes. The decision
+        # first, so that all its readers turn the axis alike.
+        turned = materialize(against < along)
+        depth = materialize(where(turned, against, along))
         axis = where(turned, -axis, axis)
     return SatAxis(depth, axis, feature)
 
@@ -364,11 +371,3 @@ def sat_runner_up(frame: PairFrame, first, min_angle) -> jax.Array:
     best_depth, best_axis, _ = _smallest(_winners(found, first, jnp.cos(min_angle)))
     return where(jnp.isfinite(best_depth), best_axis, first)
 
-
-def _support(axis, points):
-    """max over points of axis . point, read at its argmax so that the gradient reaches one
-    point with weight 1. A chain of jnp.maximum spreads it over ties, and under jit XLA may
-    recompute the tied values with different roundings in the backward pass, so that the
-    weights no longer summed to 1 (a depth gradient of norm 1.4 for a box pair)."""
-    projections = sum(axis[k] * points[:, k] for k in range(points.shape[-1]))
-    return projections[jnp.argmax(projections)]
