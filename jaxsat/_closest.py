@@ -105,9 +105,9 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     shift = jnp.maximum(sat.depth, 0.0) * sat.axis
     moved_b = b_vertices + shift
     eps = jnp.finfo(frame.dtype).eps
-    # Stored (`_kernels` rule 5), as is witness_gap below: the search and every choice after
-    # it read them, and XLA copied their select chains over the vertices into each reader
-    # (five copies of this one in a batched hull distance's program).
+    # Stored (`_kernels` rule 5): the search and every choice after it read it, and XLA
+    # copied its select chains over the vertices into each reader (five copies in a batched
+    # hull distance's program).
     rounding = k.materialize(GJK_TOLERANCE * eps * (k.largest_magnitude(a_vertices)
                                                     + k.largest_magnitude(moved_b)))
     if frame.dim == 2:
@@ -120,7 +120,7 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     witness_axis, found = k.safe_normalize(witness_b - witness_a, 0.0)
     witness_axis = k.where(found, witness_axis, sat.axis)
     sat_gap = -sat.depth
-    witness_gap = k.materialize(support_gap(witness_axis, a_vertices, b_vertices))
+    witness_gap = support_gap(witness_axis, a_vertices, b_vertices)
     # Apart, at a near-tie (a closest-feature switch) the gap is flat in the axis, so a gap
     # within rounding of the best can come from an axis sqrt(rounding) off: prefer the
     # witness axis there, whose direction is accurate to rounding (the gradient uses it).
