@@ -119,8 +119,7 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     witness_b = witness(simplex.weights, moved_b, simplex.index_b)
     witness_axis, found = k.safe_normalize(witness_b - witness_a, 0.0)
     witness_axis = k.where(found, witness_axis, sat.axis)
-    sat_gap = -sat.depth
-    witness_gap = support_gap(witness_axis, a_vertices, b_vertices)
+    sat_gap, witness_gap = -sat.depth, support_gap(witness_axis, a_vertices, b_vertices)
     # Apart, at a near-tie (a closest-feature switch) the gap is flat in the axis, so a gap
     # within rounding of the best can come from an axis sqrt(rounding) off: prefer the
     # witness axis there, whose direction is accurate to rounding (the gradient uses it).
