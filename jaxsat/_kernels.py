@@ -411,10 +411,10 @@ def take_vec(points: list[Vec], index) -> Vec:
 
 
 def materialize(tree):
-    """The same values, computed once and stored (rule 5): each leaf goes through a running
-    maximum after the smallest value, which XLA computes as a window reduction, a pass it
-    does not fuse into the consumers. (A plain reduction over a stack of two is rewritten into
-    an elementwise maximum when the leaf is a scalar, as in an unbatched program, and its
+    """The same values, computed once and stored (rule 5): each leaf goes through a window
+    maximum of itself and one padding entry holding the smallest value, a pass XLA does not
+    fuse into the consumers. (A plain reduction over a stack of two is rewritten into an
+    elementwise maximum when the leaf is a scalar, as in an unbatched program, and its
     producer is then copied into every consumer: `tests/test_kernels.py`.) Exact, NaN
     included. Each leaf is stored on its own: store one decision (an index, a code) and
     derive the other outputs from it, since two leaves computed by two chains can round a
@@ -424,22 +424,28 @@ def materialize(tree):
             return stored(leaf.astype(jnp.int8)).astype(jnp.bool_)
         if jnp.issubdtype(leaf.dtype, jnp.floating):
             return _stored_float(leaf)
-        return _running_maximum(leaf, jnp.iinfo(leaf.dtype).min)
+        return _window_maximum(leaf, jnp.iinfo(leaf.dtype).min)
     return jax.tree.map(stored, tree)
 
 
-def _running_maximum(leaf, lowest):
-    return jax.lax.cummax(jnp.stack([jnp.full_like(leaf, lowest), leaf]), axis=0)[1]
+def _window_maximum(leaf, lowest):
+    # The window covers the leaf and the padding before it along a new axis of length 1, so
+    # the stored array is the leaf's size. (A running maximum over a stack of two stores
+    # twice that and copies the half that is read into a pass of its own.)
+    ndim = jnp.ndim(leaf)
+    return jax.lax.reduce_window(leaf[None], jnp.asarray(lowest, leaf.dtype), jax.lax.max,
+                                 (2,) + (1,) * ndim, (1,) * (ndim + 1),
+                                 ((1, 0),) + ((0, 0),) * ndim)[0]
 
 
 @jax.custom_jvp
 def _stored_float(leaf):
-    return _running_maximum(leaf, -jnp.inf)
+    return _window_maximum(leaf, -jnp.inf)
 
 
 @_stored_float.defjvp
 def _stored_float_jvp(primals, tangents):
-    # The identity's derivative. JAX differentiates cummax through an associative scan: 18
-    # operations per stored leaf in a linearised program (a sixth of a hull contact
-    # manifold's value+grad program); the stored value's derivative needs none of them.
+    # The identity's derivative. JAX would differentiate the window maximum with a window
+    # pass of its own (select_and_gather_add) per stored leaf in every linearised program;
+    # the stored value's derivative needs none.
     return _stored_float(primals[0]), tangents[0]
