@@ -165,10 +165,19 @@ FACE_OF_A, FACE_OF_B, EDGE_PAIR = 0, 1, 2
 """Values of `SatAxis.feature`: which kind of candidate gave the axis."""
 
 
-def _interval_depths(a_min, a_max, b_min, b_max):
-    """The better sense of each axis: depth min(b pushed along +n, along -n), and its sign."""
-    plus, minus = a_max - b_min, b_max - a_min
-    return jnp.minimum(plus, minus), where(plus <= minus, 1.0, -1.0).astype(plus.dtype)
+def _interval_depths(a_min, a_max, b_min, b_max, store: bool = False):
+    """The better sense of each axis: depth min(b pushed along +n, along -n), and its sign
+    (+1 at a tie). By a select, so that at a tie the whole gradient follows the chosen sense
+    (`_kernels` rule 3). With `store`, the decision and the depth are stored (rule 5), the
+    decision first so that every reader turns the axis alike."""
+    along, against = a_max - b_min, b_max - a_min
+    turned = against < along
+    if store:
+        turned = materialize(turned)
+    depth = where(turned, against, along)
+    if store:
+        depth = materialize(depth)
+    return depth, where(turned, -1.0, 1.0).astype(depth.dtype)
 
 
 def _projected_axes(a: Polytope, b: Polytope, b_vertices_in_a, rotation,
@@ -343,16 +352,12 @@ def sat_search(frame: PairFrame, prune: bool = True) -> SatAxis:
         # round it differently in `GaussMapAxes.axis` than in the depth (it did for batches
         # over about 1,400 pairs), which turned the axis around and gave the depth
         # s(-u) = width + gap instead of s(u).
+        # Stored: every later stage reads the depth and the axis, and would otherwise
+        # recompute both select chains in each of its passes.
         axes = columns(axis)
-        low_a, high_a = extremes(axes, frame.a.vertices)
-        low_b, high_b = extremes(axes, frame.b_vertices)
-        along, against = high_a - low_b, high_b - low_a
-        # Stored (`_kernels` rule 5): every later stage reads the depth and the axis, and
-        # would otherwise recompute both select chains in each of its passes. The decision
-        # first, so that all its readers turn the axis alike.
-        turned = materialize(against < along)
-        depth = materialize(where(turned, against, along))
-        axis = where(turned, -axis, axis)
+        depth, sign = _interval_depths(*extremes(axes, frame.a.vertices),
+                                       *extremes(axes, frame.b_vertices), store=True)
+        axis = sign * axis
     return SatAxis(depth, axis, feature)
 
 

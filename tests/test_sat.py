@@ -768,6 +768,37 @@ def test_jitted_batched_depth_gradient_is_minus_normal_at_face_ties(dim):
     np.testing.assert_allclose(gradients, -hits.normal, atol=1e-9)
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_depth_gradient_follows_the_normal_where_both_senses_of_the_axis_tie(dim):
+    """Concentric boxes: along every axis, pushing b out along +n or -n takes the same depth.
+    The depth's gradient with respect to b's translation is then -normal (norm 1), the
+    derivative along the sense `penetration` returns; a minimum of the two senses split it
+    into halves that cancelled (gradient 0)."""
+    rng = np.random.default_rng(31)
+    count = 16
+    shapes_a = jaxsat.stack([jaxsat.box(rng.uniform(0.15, 0.6, dim)) for _ in range(count)])
+    shapes_b = jaxsat.stack([jaxsat.box(rng.uniform(0.15, 0.6, dim)) for _ in range(count)])
+    if dim == 3:
+        rotations = jnp.asarray(Rotation.random(2 * count, random_state=5).as_matrix())
+    else:
+        angles = rng.uniform(-np.pi, np.pi, 2 * count)
+        rotations = jnp.asarray(np.stack([[np.cos(angles), -np.sin(angles)],
+                                          [np.sin(angles), np.cos(angles)]]).transpose(2, 0, 1))
+    centres = jnp.asarray(rng.uniform(-0.5, 0.5, (count, dim)))
+    pose_a = jaxsat.Pose(centres, rotations[:count])
+
+    def depth(a, pose_a, b, rotation_b, translation_b):
+        return jaxsat.penetration(a, pose_a, b, jaxsat.Pose(translation_b, rotation_b)).depth
+
+    args = (shapes_a, pose_a, shapes_b, rotations[count:], centres)
+    hits = jax.vmap(lambda *x: jaxsat.penetration(*x[:3], jaxsat.Pose(x[4], x[3])))(*args)
+    assert np.all(np.asarray(hits.depth) > 0.1)
+    gradients = jax.jit(jax.vmap(jax.grad(depth, argnums=4)))(*args)
+    np.testing.assert_allclose(gradients, -hits.normal, atol=1e-9)
+    one = jax.tree.map(lambda x: x[0], args)
+    np.testing.assert_allclose(jax.grad(depth, argnums=4)(*one), -hits.normal[0], atol=1e-9)
+
+
 @pytest.mark.slow
 def test_large_batch_keeps_gauss_map_axis_sense_at_vertex_vertex_contact():
     """Regression: two octahedra 5e-8 apart tip to tip, in float64. For batches of more than
