@@ -740,6 +740,27 @@ def test_non_bool_prune_raises(prune):
         jaxsat.penetration(cube, pose, cube, pose, prune=prune)
 
 
+def _random_rotations(dim: int, count: int, rng: np.random.Generator, seed: int) -> jax.Array:
+    """(count, dim, dim) rotation matrices: uniform angles drawn from `rng` in 2D, SciPy's
+    uniform rotations with random_state `seed` in 3D (no draw from `rng`)."""
+    if dim == 3:
+        return jnp.asarray(Rotation.random(count, random_state=seed).as_matrix())
+    angles = rng.uniform(-np.pi, np.pi, count)
+    return jnp.asarray(np.stack([[np.cos(angles), -np.sin(angles)],
+                                 [np.sin(angles), np.cos(angles)]]).transpose(2, 0, 1))
+
+
+def _depth(a, pose_a, b, rotation_b, translation_b):
+    """penetration's depth, with b's pose as two arguments (to differentiate the last)."""
+    return jaxsat.penetration(a, pose_a, b, jaxsat.Pose(translation_b, rotation_b)).depth
+
+
+def _penetrations(a, pose_a, b, rotation_b, translation_b):
+    """Batched penetration of `_depth`'s arguments."""
+    return jax.vmap(lambda *x: jaxsat.penetration(*x[:3], jaxsat.Pose(x[4], x[3])))(
+        a, pose_a, b, rotation_b, translation_b)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, 3])
 def test_jitted_batched_depth_gradient_is_minus_normal_at_face_ties(dim):
@@ -748,24 +769,13 @@ def test_jitted_batched_depth_gradient_is_minus_normal_at_face_ties(dim):
     depth with respect to b's translation had norm up to 1.4 instead of being -normal."""
     rng = np.random.default_rng(27)
     count = 64
-    if dim == 3:
-        shapes = jaxsat.stack([jaxsat.box(rng.uniform(0.15, 0.6, 3)) for _ in range(count)])
-        rotations = jnp.asarray(Rotation.random(2 * count, random_state=3).as_matrix())
-    else:
-        shapes = jaxsat.stack([jaxsat.box(rng.uniform(0.15, 0.6, 2)) for _ in range(count)])
-        angles = rng.uniform(-np.pi, np.pi, 2 * count)
-        rotations = jnp.asarray(np.stack([[np.cos(angles), -np.sin(angles)],
-                                          [np.sin(angles), np.cos(angles)]]).transpose(2, 0, 1))
+    shapes = jaxsat.stack([jaxsat.box(rng.uniform(0.15, 0.6, dim)) for _ in range(count)])
+    rotations = _random_rotations(dim, 2 * count, rng, seed=3)
     translations = jnp.asarray(rng.uniform(-0.5, 0.5, (2 * count, dim)))
     pose_a = jaxsat.Pose(translations[:count], rotations[:count])
-
-    def depth(a, pose_a, b, rotation_b, translation_b):
-        return jaxsat.penetration(a, pose_a, b, jaxsat.Pose(translation_b, rotation_b)).depth
-
     args = (shapes, pose_a, shapes, rotations[count:], translations[count:])
-    gradients = jax.jit(jax.vmap(jax.grad(depth, argnums=4)))(*args)
-    hits = jax.vmap(lambda *x: jaxsat.penetration(*x[:3], jaxsat.Pose(x[4], x[3])))(*args)
-    np.testing.assert_allclose(gradients, -hits.normal, atol=1e-9)
+    gradients = jax.jit(jax.vmap(jax.grad(_depth, argnums=4)))(*args)
+    np.testing.assert_allclose(gradients, -_penetrations(*args).normal, atol=1e-9)
 
 
 @pytest.mark.parametrize("dim", [2, 3])
@@ -778,25 +788,16 @@ def test_depth_gradient_follows_the_normal_where_both_senses_of_the_axis_tie(dim
     count = 16
     shapes_a = jaxsat.stack([jaxsat.box(rng.uniform(0.15, 0.6, dim)) for _ in range(count)])
     shapes_b = jaxsat.stack([jaxsat.box(rng.uniform(0.15, 0.6, dim)) for _ in range(count)])
-    if dim == 3:
-        rotations = jnp.asarray(Rotation.random(2 * count, random_state=5).as_matrix())
-    else:
-        angles = rng.uniform(-np.pi, np.pi, 2 * count)
-        rotations = jnp.asarray(np.stack([[np.cos(angles), -np.sin(angles)],
-                                          [np.sin(angles), np.cos(angles)]]).transpose(2, 0, 1))
+    rotations = _random_rotations(dim, 2 * count, rng, seed=5)
     centres = jnp.asarray(rng.uniform(-0.5, 0.5, (count, dim)))
-    pose_a = jaxsat.Pose(centres, rotations[:count])
-
-    def depth(a, pose_a, b, rotation_b, translation_b):
-        return jaxsat.penetration(a, pose_a, b, jaxsat.Pose(translation_b, rotation_b)).depth
-
-    args = (shapes_a, pose_a, shapes_b, rotations[count:], centres)
-    hits = jax.vmap(lambda *x: jaxsat.penetration(*x[:3], jaxsat.Pose(x[4], x[3])))(*args)
+    args = (shapes_a, jaxsat.Pose(centres, rotations[:count]), shapes_b, rotations[count:],
+            centres)
+    hits = _penetrations(*args)
     assert np.all(np.asarray(hits.depth) > 0.1)
-    gradients = jax.jit(jax.vmap(jax.grad(depth, argnums=4)))(*args)
+    gradients = jax.jit(jax.vmap(jax.grad(_depth, argnums=4)))(*args)
     np.testing.assert_allclose(gradients, -hits.normal, atol=1e-9)
     one = jax.tree.map(lambda x: x[0], args)
-    np.testing.assert_allclose(jax.grad(depth, argnums=4)(*one), -hits.normal[0], atol=1e-9)
+    np.testing.assert_allclose(jax.grad(_depth, argnums=4)(*one), -hits.normal[0], atol=1e-9)
 
 
 @pytest.mark.slow
