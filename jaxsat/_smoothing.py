@@ -98,11 +98,13 @@ def _soft_max(projections, mask, tau):
         terms = where(mask, jnp.exp((where(mask, projections, top) - top) / tau), 0.0)
         return top + tau * jnp.log(jnp.sum(terms))
     entries, real = jnp.unstack(projections), jnp.unstack(mask)
-    # Padding repeats entry 0, so the chain's maximum is over the real entries; the shift's
-    # own derivative cancels (d/dtop of the result is 1 - sum of the weights).
+    # The shift is any real entry's value at most: held fixed, since the result does not
+    # depend on it, so that no rounding residue of its derivative (1 - sum of the weights)
+    # reaches the vertex it came from. Entry 0 is real (padding repeats it).
     top = entries[0]
-    for entry in entries[1:]:
-        top = where(entry > top, entry, top)
+    for entry, m in zip(entries[1:], real[1:], strict=True):
+        top = where(m & (entry > top), entry, top)
+    top = jax.lax.stop_gradient(top)
     total = sum(where(m, jnp.exp((where(m, x, top) - top) / tau), 0.0)
                 for x, m in zip(entries, real, strict=True))
     return top + tau * jnp.log(total)
@@ -121,6 +123,8 @@ class _Side(NamedTuple):
     """(V, K) float: 1, the point's coordinates, the upper triangle of x x'."""
     mask: jax.Array
     """(V,) bool: real vertices."""
+    coordinates: tuple[jax.Array, ...]
+    """D arrays (V,): the points' coordinates, split once outside the search's loop."""
 
 
 class _Summary(NamedTuple):
@@ -147,7 +151,7 @@ def _side(vertices, mask, sign: float) -> _Side:
     dim = points.shape[-1]
     features = jnp.stack([jnp.ones_like(points[:, 0]), *(points[:, k] for k in range(dim)),
                           *(points[:, k] * points[:, m] for k, m in _upper(dim))], axis=-1)
-    return _Side(points, sign * centre, features, mask)
+    return _Side(points, sign * centre, features, mask, tuple(kernels.columns(points)))
 
 
 def _summary(frame: PairFrame) -> _Summary:
@@ -177,12 +181,12 @@ def _side_moments(side: _Side, axis: Vec, tau) -> jax.Array:
         weights = materialize(where(side.mask, jnp.exp(shifted / tau), 0.0))
         sums = jnp.sum(weights[:, None] * side.features, axis=0)
         return jnp.concatenate([(top + tau * jnp.log(sums[0]) + offset)[None], sums])
-    rows, real = kernels.as_vecs(side.points), jnp.unstack(side.mask)
+    rows = list(zip(*(jnp.unstack(c) for c in side.coordinates), strict=True))
+    real = jnp.unstack(side.mask)
     projections = [kernels.vdot(row, axis) for row in rows]
-    # Padding repeats vertex 0, so the chain's maximum is over the real vertices.
-    top = projections[0]
-    for projection in projections[1:]:
-        top = where(projection > top, projection, top)
+    top = projections[0]  # vertex 0 is real (padding repeats it)
+    for projection, m in zip(projections[1:], real[1:], strict=True):
+        top = where(m & (projection > top), projection, top)
     weights = [where(m, jnp.exp((p - top) / tau), 0.0) for p, m in zip(projections, real,
                                                                         strict=True)]
     total = sum(weights)
