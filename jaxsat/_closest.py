@@ -113,11 +113,12 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     if frame.dim == 2:
         simplex = closest_pair_of_support_faces(a_vertices, frame.a.num_real_vertices,
                                                 moved_b, frame.b.num_real_vertices, sat.axis)
+        difference = (witness(simplex.weights, moved_b, simplex.index_b)
+                      - witness(simplex.weights, a_vertices, simplex.index_a))
     else:
         simplex = closest_point_gjk(a_vertices, moved_b, sat.axis, rounding, GJK_MAX_ITERATIONS)
-    witness_a = witness(simplex.weights, a_vertices, simplex.index_a)
-    witness_b = witness(simplex.weights, moved_b, simplex.index_b)
-    witness_axis, found = k.safe_normalize(witness_b - witness_a, 0.0)
+        difference = simplex.closest
+    witness_axis, found = k.safe_normalize(difference, 0.0)
     witness_axis = k.where(found, witness_axis, sat.axis)
     sat_gap, witness_gap = -sat.depth, support_gap(witness_axis, a_vertices, b_vertices)
     # Apart, at a near-tie (a closest-feature switch) the gap is flat in the axis, so a gap
@@ -129,7 +130,7 @@ def exact_distance(frame: PairFrame) -> ExactDistance:
     # witness axis loses the axis' error times the shapes' extent: in float32 that error is
     # about eps x size / distance in angle, so 3e-4 of the size lost on a vertex pair 3e-3
     # apart. Overlapping, the SAT gap is exact.
-    length = k.dot(witness_axis, witness_b - witness_a)  # 0 where the points coincide
+    length = k.dot(witness_axis, difference)  # 0 where the points coincide
     converged = simplex.iterations < GJK_MAX_ITERATIONS
     by_length = use_witness & (sat.depth < 0) & converged
     distance = k.where(by_length, jnp.maximum(witness_gap, length),

@@ -61,6 +61,9 @@ class Simplex(NamedTuple):
     """(S,) float: barycentric weights of the closest point (they sum to 1)."""
     iterations: jax.Array
     """() int32: support steps taken."""
+    closest: jax.Array | None = None
+    """(D,) float: v = q - p, the closest point of B - A, from the stored simplex points (no
+    gather of the vertices); None where the search does not keep them."""
 
 
 class _State(NamedTuple):
@@ -237,4 +240,5 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
     state = jax.lax.while_loop(going, step, state)
     weights = simplex_weights(list(state.points), state.pairs)
     pairs = jnp.stack([jnp.maximum(pair, 0) for pair in state.pairs])
-    return Simplex(pairs // count_b, pairs % count_b, jnp.stack(weights), state.iterations)
+    return Simplex(pairs // count_b, pairs % count_b, jnp.stack(weights), state.iterations,
+                   jnp.stack(closest(list(state.points), weights)))
