@@ -69,3 +69,18 @@ def test_png_size_reads_the_header():
     assert _png_size(header) == (640, 480)
     with pytest.raises(AssertionError, match="not a PNG"):
         _png_size(b"GIF89a" + header[6:])
+
+
+def test_the_run_time_picture_reads_the_committed_results(script):
+    """make_runtime_vs_error reads the committed benchmark record as runtime_vs_error.py now
+    writes it: every field it plots is there, for every case and variant it draws."""
+    data = json.loads(script.RUNTIME_VS_ERROR.read_text())
+    assert {"machine", "config", "cases", "rows", "tau_fractions", "size"} <= set(data)
+    assert {"cpu_count", "cpu_model", "versions"} <= set(data["machine"])
+    assert "repeats" in data["config"]
+    for case in data["cases"]:
+        rows = [row for row in data["rows"] if row["case"] == case["case"]]
+        assert {row["variant"] for row in rows} == set(script.VARIANTS), case["case"]
+        for row in rows:
+            assert row["value_best_s"] > 0 and row["pairs"] > 0, row
+            assert row["value_error_max"] >= 0 and "tau_fraction" in row, row

@@ -72,7 +72,7 @@ def make_runtime_vs_error(assets: pathlib.Path) -> list[pathlib.Path]:
     figure = Figure(figsize=(13, 4.6), layout="constrained")
     panels = figure.subplots(1, len(cases), sharey=True)
     for axes, case in zip(panels, cases, strict=True):
-        rows = [row for row in data["results"] if row["case"] == case]
+        rows = [row for row in data["rows"] if row["case"] == case]
         for variant, (label, colour, marker) in VARIANTS.items():
             chosen = sorted((row for row in rows if row["variant"] == variant),
                             key=lambda row: row["tau_fraction"])
@@ -91,12 +91,12 @@ def make_runtime_vs_error(assets: pathlib.Path) -> list[pathlib.Path]:
     handles, labels = panels[0].get_legend_handles_labels()
     figure.legend(handles, labels, loc="outside lower center", ncol=4, frameon=False)
     cores, cpu = machine["cpu_count"], machine["cpu_model"]
-    fractions = ", ".join(f"{fraction:g}" for fraction in config["tau_fractions"])
+    fractions = ", ".join(f"{fraction:g}" for fraction in data["tau_fractions"])
     figure.suptitle(
         f"jaxsat.signed_distance (value only): run time against error, {cores}-core {cpu} "
         f"CPU, JAX {machine['versions']['jax']}, jit(vmap), best of {config['repeats']}\n"
         f"error: largest |value - oracle| over the pairs (shapes about 1 unit across); "
-        f"smooth: smoothing=tau, tau = {fractions} x size {config['size']} from left to "
+        f"smooth: smoothing=tau, tau = {fractions} x size {data['size']} from left to "
         f"right", fontsize=11)
     path = assets / "runtime_vs_error.png"
     figure.savefig(path, dpi=DPI)
