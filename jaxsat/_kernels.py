@@ -31,7 +31,11 @@ and "Distance"); breaking one typically costs 2x or more.
    elementwise producer is recomputed per consumer element. `materialize` stores it once
    (optimisation barriers are dropped before fusion on CPU, so they cannot). End an
    expensive stage in one stored value (an index, a code packing several decisions, one
-   reduction's array) and derive the outputs from it cheaply.
+   reduction's array) and derive the outputs from it cheaply. A stack of several results
+   is no exception: each stacked entry recomputes what it reads (the smooth search's first
+   moments, K sums over shared exponentials, computed each exponential K times), and so
+   does a pick among candidates (a select over twelve computed parameters recomputed all
+   twelve): store the shared values, or pick the inputs and compute once.
 6. **Trace each select once.** `jnp.where` is itself a jitted function: every call adds a
    nested jit that is traced again under `vmap` and again under `grad`, and a distance query
    makes about 800 of them. `where` here is the same select written directly.
