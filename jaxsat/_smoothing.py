@@ -98,16 +98,22 @@ def _soft_max(projections, mask, tau):
         terms = where(mask, jnp.exp((where(mask, projections, top) - top) / tau), 0.0)
         return top + tau * jnp.log(jnp.sum(terms))
     entries, real = jnp.unstack(projections), jnp.unstack(mask)
-    # The shift is any real entry's value at most: held fixed, since the result does not
-    # depend on it, so that no rounding residue of its derivative (1 - sum of the weights)
-    # reaches the vertex it came from. Entry 0 is real (padding repeats it).
-    top = entries[0]
-    for entry, m in zip(entries[1:], real[1:], strict=True):
-        top = where(m & (entry > top), entry, top)
-    top = jax.lax.stop_gradient(top)
+    # The shift is held fixed, since the result does not depend on it, so that no rounding
+    # residue of its derivative (1 - sum of the weights) reaches the vertex it came from.
+    top = jax.lax.stop_gradient(_largest_real(entries, real))
     total = sum(where(m, jnp.exp((where(m, x, top) - top) / tau), 0.0)
                 for x, m in zip(entries, real, strict=True))
     return top + tau * jnp.log(total)
+
+
+def _largest_real(entries, real):
+    """The largest of the entries whose `real` flag is set, by a select chain (`_kernels`
+    rules 2-3). Entry 0 is real (padding repeats it), and a padding copy, which XLA may round
+    1 ulp differently in another fusion, never wins."""
+    top = entries[0]
+    for entry, m in zip(entries[1:], real[1:], strict=True):
+        top = where(m & (entry > top), entry, top)
+    return top
 
 
 class _Side(NamedTuple):
@@ -190,9 +196,7 @@ def _side_moments(side: _Side, axis: Vec, tau, store_weights: bool = False
     rows = list(zip(*(jnp.unstack(c) for c in side.coordinates), strict=True))
     real = jnp.unstack(side.mask)
     projections = [kernels.vdot(row, axis) for row in rows]
-    top = projections[0]  # vertex 0 is real (padding repeats it)
-    for projection, m in zip(projections[1:], real[1:], strict=True):
-        top = where(m & (projection > top), projection, top)
+    top = _largest_real(projections, real)
     weights = [where(m, jnp.exp((p - top) / tau), 0.0) for p, m in zip(projections, real,
                                                                         strict=True)]
     if store_weights:
