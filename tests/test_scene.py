@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from harness import FAST_COMPILE
 
 import jaxsat
 
@@ -40,9 +41,11 @@ def _every_pair(shapes, poses):
 
 
 def _brute_force(shapes, poses, keep=None):
-    """Penetration of every pair i < j (vmap over all of them) -> {(i, j): (depth, normal)}."""
+    """Penetration of every pair i < j (vmap over all of them) -> {(i, j): (depth, normal)}.
+    The reference is built with `harness.FAST_COMPILE` (the test is of `collide`, which is
+    compiled as a user's call compiles it)."""
     rows, cols, *batch = _every_pair(shapes, poses)
-    hits = jax.jit(jax.vmap(jaxsat.penetration))(*batch)
+    hits = jax.jit(jax.vmap(jaxsat.penetration), compiler_options=FAST_COMPILE)(*batch)
     depth, normal = np.asarray(hits.depth), np.asarray(hits.normal)
     colliding = depth >= 0
     if keep is not None:
@@ -227,11 +230,12 @@ def test_collide_sharded_over_four_devices_equals_one_device():
 
 
 def _signed_distances(shapes, poses, smoothing=None):
-    """Signed distance of every pair i < j (vmap over all of them) -> {(i, j): distance}."""
+    """Signed distance of every pair i < j (vmap over all of them, `harness.FAST_COMPILE` as
+    in `_brute_force`) -> {(i, j): distance}."""
     rows, cols, *batch = _every_pair(shapes, poses)
     query = jax.vmap(lambda a, pa, b, pb: jaxsat.signed_distance(a, pa, b, pb,
                                                                  smoothing=smoothing))
-    values = np.asarray(jax.jit(query)(*batch))
+    values = np.asarray(jax.jit(query, compiler_options=FAST_COMPILE)(*batch))
     return {(int(i), int(j)): value for i, j, value in zip(rows, cols, values, strict=True)}
 
 
