@@ -408,6 +408,58 @@ def soft_gap(frame: PairFrame, axis, tau):
     return -soft_b - soft_a
 
 
+@jax.custom_batching.custom_vmap
+def _searches(frame: PairFrame, tau, starts, wanted):
+    """`_search` from each of the (K, D) `starts` where `wanted` (K,), else (start, inf, inf):
+    a result that never wins the comparison in `_maximiser`. Under `vmap` only the wanted
+    searches run (`_searches_vmap`)."""
+    axes, losses, slopes = jax.vmap(_search, in_axes=(None, None, 0))(frame, tau, starts)
+    inf = jnp.asarray(jnp.inf, losses.dtype)
+    return (where(wanted[:, None], axes, starts), where(wanted, losses, inf),
+            where(wanted, slopes, inf))
+
+
+SEARCH_CHUNKS = 8
+"""A batch's wanted searches run in chunks of 1/8 of all its searches (at least one), as many
+chunks as they fill."""
+
+
+@_searches.def_vmap
+def _searches_vmap(axis_size, in_batched, frame, tau, starts, wanted):
+    """The batched `_searches`: the wanted (pair, start) searches are gathered, in chunks, and
+    run; the others get (start, inf, inf) without a search. A plain `vmap` would run them all,
+    since a batched select computes both of its sides."""
+    def batched(x, is_batched):
+        return x if is_batched else jnp.broadcast_to(x, (axis_size, *jnp.shape(x)))
+
+    frame, tau, starts, wanted = jax.tree.map(batched, (frame, tau, starts, wanted),
+                                              tuple(in_batched))
+    per_pair = starts.shape[1]
+    slots = axis_size * per_pair
+    starts, wanted = starts.reshape(slots, -1), wanted.reshape(slots)
+    chunk = max(1, -(-slots // SEARCH_CHUNKS))
+    # The wanted slots, then `slots` (out of range: dropped when written).
+    rows = jnp.nonzero(wanted, size=chunk * -(-slots // chunk),
+                       fill_value=slots)[0].astype(jnp.int32)
+    count = jnp.sum(wanted, dtype=jnp.int32)
+    inf = jnp.full((slots,), jnp.inf, starts.dtype)
+
+    def search_chunk(state):
+        done, found = state
+        picked = jax.lax.dynamic_slice(rows, (done,), (chunk,))
+        slot = jnp.minimum(picked, slots - 1)
+        inputs = (jax.tree.map(lambda x: x[slot // per_pair], (frame, tau)), starts[slot])
+        return done + chunk, tuple(
+            old.at[picked].set(new, mode="drop")
+            for old, new in zip(found, jax.vmap(_search)(*inputs[0], inputs[1]), strict=True))
+
+    _, (axes, losses, slopes) = jax.lax.while_loop(
+        lambda state: state[0] < count, search_chunk,
+        (jnp.zeros((), jnp.int32), (starts, inf, inf)))
+    return ((axes.reshape(axis_size, per_pair, -1), losses.reshape(axis_size, per_pair),
+             slopes.reshape(axis_size, per_pair)), (True, True, True))
+
+
 @jax.custom_jvp
 def _maximiser(frame: PairFrame, tau):
     """The unit axis (a's frame) maximising soft_gap: the better of the searches from two
@@ -415,13 +467,34 @@ def _maximiser(frame: PairFrame, tau):
     second is the best SAT candidate more than a few tau / extent radians from the first
     (nearer ones share its basin): where two penetration directions tie, the local maximum
     near each is found, and taking the larger keeps the value continuous when they swap.
-    Between values that tie within rounding, the axis where soft_gap is flatter wins."""
+    Between values that tie within rounding, the axis where soft_gap is flatter wins. In 3D
+    the second search runs only where the exact distance is at most c tau (overlapping or
+    nearly touching shapes: see below), and under `vmap` the others skip it
+    (`_searches_vmap`): box pairs' value and gradient 0.63x the time at 1e5 pairs (0.95x at
+    1e4), 20-vertex hulls 0.92x, on a 2-core AMD EPYC."""
     frozen, tau = jax.lax.stop_gradient((frame, tau))
     extent = jnp.max(jnp.abs(frozen.a.vertices)) + jnp.max(jnp.abs(frozen.b_vertices))
     apart = jnp.clip(_SECOND_START_ANGLE * tau / extent, 1e-3, 0.5)
-    first = exact_distance(frozen).axis
-    starts = jnp.stack([first, sat_runner_up(frozen, first, apart)])
-    axes, losses, slopes = jax.vmap(_search, in_axes=(None, None, 0))(frozen, tau, starts)
+    exact = exact_distance(frozen)
+    starts = jnp.stack([exact.axis, sat_runner_up(frozen, exact.axis, apart)])
+    if frozen.dim == 3:
+        # Where the exact distance exceeds c tau (c = log(n_a n_b), `smoothing_error_bound`),
+        # soft_gap > 0 at the first start already, and a positive maximum is the only one as
+        # high: where soft_gap > 0, gap > 0 too and soft_gap rises along every ray (each
+        # u.m > 0), so for two axes with soft_gap >= t > 0, concavity holds soft_gap >= t on
+        # the segment between them, and the rise along rays on the arc above it. A second
+        # maximum at least as high would be joined to the first by an arc that never dips
+        # below it. There the second search is skipped.
+        counts = [jnp.sum(shape.vertex_mask, dtype=jnp.int32) for shape in (frozen.a, frozen.b)]
+        bound = jnp.log((counts[0] * counts[1]).astype(frozen.dtype)) * tau
+        needed = exact.distance <= bound + 64 * jnp.finfo(frozen.dtype).eps * extent
+        wanted = jnp.stack([jnp.ones_like(needed), needed])
+        axes, losses, slopes = _searches(frozen, tau, starts, wanted)
+    else:
+        # In 2D both searches always run, as one vmap over the two starts: the first search
+        # alone took 1.08x as long as both together on 1e5 pairs (XLA's passes over a batch
+        # of 2N axes cost about what they cost over N), so skipping saves nothing.
+        axes, losses, slopes = jax.vmap(_search, in_axes=(None, None, 0))(frozen, tau, starts)
     # Near a maximum soft_gap changes only to second order, so an axis 1e-8 off the maximum
     # (a search that ran out of steps) has a value equal to the maximum up to rounding, but
     # a gradient off by 1e-8: between values that tie within rounding, the flatter axis wins.

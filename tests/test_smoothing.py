@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import oracle
 import pytest
@@ -53,7 +54,9 @@ from scipy.spatial.transform import Rotation
 
 import jaxsat
 from jaxsat import _smoothing as smoothing
+from jaxsat._closest import exact_distance
 from jaxsat._pair import pair_frame
+from jaxsat._sat import sat_runner_up
 
 # --------------------------------------------------------------------------------------------
 # The smooth value as a function of vertices and pose parameters, batched and jitted.
@@ -426,6 +429,71 @@ def test_the_newton_steps_reach_the_maximiser_of_a_long_search(name, monkeypatch
     reference = _maximisers(pairs, 0.005, monkeypatch, 40)
     gaps = np.linalg.norm(found - reference, axis=1)[apart]
     assert np.max(gaps) < 2e-6, (np.max(gaps), int(np.sum(gaps >= 2e-6)))
+
+
+@pytest.mark.parametrize("name", ["box", "hull8"])
+def test_batched_searches_equal_single_calls(name):
+    """In 3D, `vmap` of the two searches runs only the wanted ones, gathered in chunks of 1/8
+    of the batch's searches: on 37 pairs (74 searches: chunks of 10, the last one partly
+    padding), every first and about half of the second searches wanted, the batched results
+    equal single calls, and an unwanted search gives its start, with loss and slope inf.
+    (Axes and losses equal to 1e-6: the two programs are fused differently, and a search that
+    ends unconverged, as some from the runner-up do, carries that rounding along its steps to
+    about 1e-7. A search written to the wrong slot would be off by the distance between two
+    axes, of order 1.)"""
+    shapes = pool(name, np.float64)
+    pairs = random_pairs(shapes, shapes, 37, np.random.default_rng(72), np.float64)
+    needed = np.random.default_rng(73).random(37) < 0.5
+    tau = np.float64(0.01)
+
+    def one(a, params_a, b, params_b, need):
+        frame = pair_frame(a, make_pose(params_a), b, make_pose(params_b))
+        first = exact_distance(frame).axis
+        starts = jnp.stack([first, sat_runner_up(frame, first, 0.05)])
+        return starts, smoothing._searches(frame, tau, starts, jnp.stack([True, need]))
+
+    starts, batched = jax.jit(jax.vmap(one))(*pairs.inputs(), needed)
+    single = jax.jit(one)
+    a, params_a, b, params_b = pairs.inputs()
+    for i in range(len(pairs)):
+        _, alone = single(take(a, i), take(params_a, i), take(b, i), take(params_b, i),
+                          needed[i])
+        for got, expected in zip(batched[:2], alone[:2], strict=True):  # axes, losses
+            np.testing.assert_allclose(got[i], expected, rtol=0, atol=1e-6)
+    skipped = ~needed
+    np.testing.assert_array_equal(batched[0][skipped, 1], starts[skipped, 1])
+    assert np.all(np.isinf(batched[1][skipped, 1])) and np.all(np.isinf(batched[2][skipped, 1]))
+    assert np.all(np.isfinite(batched[1][needed])) and np.all(np.isfinite(batched[1][:, 0]))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["box", "hull8"])
+def test_where_the_distance_exceeds_c_tau_the_second_search_cannot_win(name):
+    """The 3D search skips its second start where the exact distance exceeds
+    c tau = `smoothing_error_bound` * tau, because soft_gap is then positive at the first
+    start and has no other maximum as high (`_smoothing._maximiser`). On 1024 random pairs,
+    float64, tau = 0.5% of the size: wherever the distance exceeds c tau, the second search,
+    from the runner-up SAT axis, ends no higher than the first (up to rounding)."""
+    shapes = pool(name, np.float64)
+    pairs = random_pairs(shapes, shapes, 1024, np.random.default_rng(74), np.float64)
+
+    def both(a, params_a, b, params_b):
+        frame = pair_frame(a, make_pose(params_a), b, make_pose(params_b))
+        tau = np.float64(0.005) * (jnp.max(jnp.abs(frame.a.vertices))
+                                   + jnp.max(jnp.abs(frame.b_vertices)))
+        exact = exact_distance(frame)
+        second = sat_runner_up(frame, exact.axis, 0.05)
+        return (exact.distance - jaxsat.smoothing_error_bound(a, b) * tau,
+                -smoothing._search(frame, tau, exact.axis)[1],
+                -smoothing._search(frame, tau, second)[1])
+
+    margin, first, second = (np.asarray(x) for x in jax.jit(
+        jax.vmap(both), compiler_options=FAST_COMPILE)(*pairs.inputs()))
+    skipped = margin > 0
+    assert skipped.mean() > 0.3
+    assert np.all(first[skipped] > 0)
+    assert np.all(second[skipped] <= first[skipped] + 1e-12), np.max(second[skipped]
+                                                                    - first[skipped])
 
 
 @pytest.mark.slow
