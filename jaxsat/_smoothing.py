@@ -438,9 +438,12 @@ def _searches_vmap(axis_size, in_batched, frame, tau, starts, wanted):
     slots = axis_size * per_pair
     starts, wanted = starts.reshape(slots, -1), wanted.reshape(slots)
     chunk = max(1, -(-slots // SEARCH_CHUNKS))
-    # The wanted slots, then `slots` (out of range: dropped when written).
-    rows = jnp.nonzero(wanted, size=chunk * -(-slots // chunk),
-                       fill_value=slots)[0].astype(jnp.int32)
+    # The wanted slots, then `slots` (out of range: dropped when written). Each wanted slot
+    # goes to its rank among them (`jnp.nonzero` would trace a nested `jnp.where`).
+    size = chunk * -(-slots // chunk)
+    rank = jnp.cumsum(wanted, dtype=jnp.int32) - 1
+    rows = jnp.full((size,), slots, jnp.int32).at[where(wanted, rank, size)].set(
+        jnp.arange(slots, dtype=jnp.int32), mode="drop")
     count = jnp.sum(wanted, dtype=jnp.int32)
     inf = jnp.full((slots,), jnp.inf, starts.dtype)
 
