@@ -451,10 +451,10 @@ def _searches_vmap(axis_size, in_batched, frame, tau, starts, wanted):
         done, found = state
         picked = jax.lax.dynamic_slice(rows, (done,), (chunk,))
         slot = jnp.minimum(picked, slots - 1)
-        inputs = (jax.tree.map(lambda x: x[slot // per_pair], (frame, tau)), starts[slot])
-        return done + chunk, tuple(
-            old.at[picked].set(new, mode="drop")
-            for old, new in zip(found, jax.vmap(_search)(*inputs[0], inputs[1]), strict=True))
+        pair_frames, pair_taus = jax.tree.map(lambda x: x[slot // per_pair], (frame, tau))
+        searched = jax.vmap(_search)(pair_frames, pair_taus, starts[slot])
+        return done + chunk, tuple(old.at[picked].set(new, mode="drop")
+                                   for old, new in zip(found, searched, strict=True))
 
     _, (axes, losses, slopes) = jax.lax.while_loop(
         lambda state: state[0] < count, search_chunk,
@@ -488,8 +488,7 @@ def _maximiser(frame: PairFrame, tau):
         # the segment between them, and the rise along rays on the arc above it. A second
         # maximum at least as high would be joined to the first by an arc that never dips
         # below it. There the second search is skipped.
-        counts = [jnp.sum(shape.vertex_mask, dtype=jnp.int32) for shape in (frozen.a, frozen.b)]
-        bound = jnp.log((counts[0] * counts[1]).astype(frozen.dtype)) * tau
+        bound = smoothing_error_bound(frozen.a, frozen.b) * tau
         needed = exact.distance <= bound + 64 * jnp.finfo(frozen.dtype).eps * extent
         wanted = jnp.stack([jnp.ones_like(needed), needed])
         axes, losses, slopes = _searches(frozen, tau, starts, wanted)
