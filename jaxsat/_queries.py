@@ -226,7 +226,7 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
         # One search gives both the value and the axis.
         value, found = _exact_value(frame)
         return Penetration(depth=-value, normal=frame.direction_to_world(found.axis))
-    found = sat_search(frame, prune)
+    found = sat_search(frame, prune, box_kernel=True)
     return Penetration(depth=found.depth, normal=frame.direction_to_world(found.axis))
 
 
@@ -260,7 +260,7 @@ def _sat_intersects(a, pose_a, b, pose_b) -> jax.Array:
     # The winning axis' depth as `penetration` measures it (by projection), not the raw
     # minimum over candidates: a Gauss-map edge depth loses float32 digits, and two shapes
     # touching at a point got -2e-8 here against +1.2e-7 from `penetration`.
-    return sat_search(pair_frame(a, pose_a, b, pose_b)).depth >= 0
+    return sat_search(pair_frame(a, pose_a, b, pose_b), box_kernel=True).depth >= 0
 
 
 @jax.custom_batching.custom_vmap

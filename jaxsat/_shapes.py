@@ -11,11 +11,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsat import _geometry as geometry
-from jaxsat._kernels import explicit_float_dtype, where
+from jaxsat._kernels import Vec, as_vecs, explicit_float_dtype, vcross, vdot, vscale, vsum, where
 
 __all__ = ["CappedHull", "Polytope", "SizeClass", "box", "cap_hull", "capsule", "circle",
-           "float_dtype", "moved", "pad_and_stack", "polygon", "polyhedron", "regular_polygon",
-           "ring_neighbours", "rounded", "size_class_for", "sphere", "stack"]
+           "float_dtype", "moved", "pad_and_stack", "parallelepiped_frame", "polygon",
+           "polyhedron", "regular_polygon", "ring_neighbours", "rounded", "size_class_for",
+           "sphere", "stack"]
 
 
 class SizeClass(NamedTuple):
@@ -125,6 +126,15 @@ class Polytope:
         return self.dim == 3 and self.edge_directions.shape[-2] <= 3
 
     @property
+    def has_parallelepiped_frame(self) -> bool:
+        """Static: a sharp parallelepiped padded to nothing (8 vertices, 3 face normals, 3
+        edge directions), so that every entry of a batch of it is a whole parallelepiped and
+        `parallelepiped_frame` describes it exactly. (A rounded batch may hold a point or
+        segment core padded to 8 vertices, so rounded shapes never qualify.)"""
+        return (self.dim == 3 and self.radius is None and self.vertices.shape[-2] == 8
+                and self.face_normals.shape[-2] == 3 and self.edge_directions.shape[-2] == 3)
+
+    @property
     def is_rounded(self) -> bool:
         """Static: the shape carries a radius (it may be 0)."""
         return self.radius is not None
@@ -133,6 +143,29 @@ class Polytope:
     def num_real_vertices(self) -> jax.Array:
         """() int32 (batch shape): how many vertices are real (traced)."""
         return jnp.sum(self.vertex_mask, axis=-1, dtype=jnp.int32)
+
+
+def parallelepiped_frame(shape: Polytope) -> tuple[Vec, list[Vec]]:
+    """(centre, three half-edge vectors e_m), as Vecs, of an unbatched shape with
+    `has_parallelepiped_frame`: its points are centre + sum_m s_m e_m for s in [-1, 1]^3, so
+    its support along any axis u is u . centre + sum_m |u . e_m|.
+
+    From the face normals n_m and extents [lo_m, hi_m] (the shape is the set of x with
+    lo_m <= n_m . x <= hi_m): with w_m = n_(m+1) x n_(m+2) and det = n_0 . w_0, n_m . w_k is
+    det for m = k and 0 otherwise, so x = sum_m (n_m . x) w_m / det, which gives
+    centre = sum_m mid_m w_m / det and e_m = half_m w_m / |det|. Not differentiable in a useful
+    way (the face data are fixed by the vertices at construction): for choosing, not for
+    measuring."""
+    normals = as_vecs(shape.face_normals)
+    extents = shape.face_extents
+    planes = [vcross(normals[(m + 1) % 3], normals[(m + 2) % 3]) for m in range(3)]
+    determinant = vdot(normals[0], planes[0])
+    inverse = 1.0 / determinant
+    centre = vsum([vscale(0.5 * (extents[m, 0] + extents[m, 1]) * inverse, planes[m])
+                   for m in range(3)])
+    half_edges = [vscale(0.5 * (extents[m, 1] - extents[m, 0]) * jnp.abs(inverse), planes[m])
+                  for m in range(3)]
+    return centre, half_edges
 
 
 def ring_neighbours(index, count):
