@@ -472,7 +472,7 @@ def _maximiser(frame: PairFrame, tau):
     near each is found, and taking the larger keeps the value continuous when they swap.
     Between values that tie within rounding, the axis where soft_gap is flatter wins. In 3D
     the second search runs only where the exact distance is at most c tau (overlapping or
-    nearly touching shapes: see below), and under `vmap` the others skip it
+    nearly touching shapes: see below), and under `vmap` on the CPU the others skip it
     (`_searches_vmap`): box pairs' value and gradient 0.63x the time at 1e5 pairs (0.95x at
     1e4), 20-vertex hulls 0.92x, on a 2-core AMD EPYC."""
     frozen, tau = jax.lax.stop_gradient((frame, tau))
@@ -480,7 +480,7 @@ def _maximiser(frame: PairFrame, tau):
     apart = jnp.clip(_SECOND_START_ANGLE * tau / extent, 1e-3, 0.5)
     exact = exact_distance(frozen)
     starts = jnp.stack([exact.axis, sat_runner_up(frozen, exact.axis, apart)])
-    if frozen.dim == 3:
+    if frozen.dim == 3 and jax.default_backend() == "cpu":
         # Where the exact distance exceeds c tau (c = log(n_a n_b), `smoothing_error_bound`),
         # soft_gap > 0 at the first start already, and a positive maximum is the only one as
         # high: where soft_gap > 0, gap > 0 too and soft_gap rises along every ray (each
@@ -495,7 +495,11 @@ def _maximiser(frame: PairFrame, tau):
     else:
         # In 2D both searches always run, as one vmap over the two starts: the first search
         # alone took 1.08x as long as both together on 1e5 pairs (XLA's passes over a batch
-        # of 2N axes cost about what they cost over N), so skipping saves nothing.
+        # of 2N axes cost about what they cost over N), so skipping saves nothing. Off the
+        # CPU too: on an H100 the skipping batching rule's chunks (each 1/8 of the batch's
+        # searches, run one after another) left box pairs' value and gradient 2.6x slower at
+        # 1e5 pairs (1.34e7 against 3.45e7 pairs/s) and no faster at 1e6
+        # (benchmarks/results/gpu-nvidia-h100.md).
         axes, losses, slopes = jax.vmap(_search, in_axes=(None, None, 0))(frozen, tau, starts)
     # Near a maximum soft_gap changes only to second order, so an axis 1e-8 off the maximum
     # (a search that ran out of steps) has a value equal to the maximum up to rounding, but
