@@ -414,20 +414,22 @@ def _parallelepiped_search(frame: PairFrame) -> SatAxis:
     (`_parallelepiped_winner`), stored, and its axis built from it alone and measured by
     projecting both shapes' vertices (so depth, sense and gradients are the general path's)."""
     index = materialize(_parallelepiped_winner(frame))
-    # The winner's inputs picked first (a's normal or edge, b's normal or edge in b's frame),
-    # then turned and crossed once, rather than all 15 axes built and one picked.
-    from_a = as_vecs(frame.a.face_normals) + [edge for edge in as_vecs(frame.a.edge_directions)
-                                               for _ in range(3)]
-    from_b = as_vecs(frame.b.face_normals) + as_vecs(frame.b.edge_directions) * 3
-    picked_a, picked_b = from_a[0], from_b[0]
-    for candidate in range(1, 15):
-        if candidate < 3 or candidate >= 6:
-            picked_a = vselect(index == candidate, from_a[candidate - 3 * (candidate >= 6)],
-                               picked_a)
-        if candidate >= 3:
-            picked_b = vselect(index == candidate, from_b[candidate - 3], picked_b)
+    # The winner's inputs picked first (a's normal or edge, b's normal or edge in b's frame:
+    # 6 choices a side), then turned and crossed once, rather than all 15 axes built and one
+    # picked.
+    row, column = (index - 6) // 3, (index - 6) % 3
+    of_a = where(index < 3, index, where(index >= 6, 3 + row, 0))
+    of_b = where(index < 3, 0, where(index < 6, index - 3, 3 + column))
+    picked = []
+    for shape, choice in ((frame.a, of_a), (frame.b, of_b)):
+        choices = as_vecs(shape.face_normals) + as_vecs(shape.edge_directions)
+        chosen = choices[0]
+        for k in range(1, 6):
+            chosen = vselect(choice == k, choices[k], chosen)
+        picked.append(chosen)
+    picked_a = picked[0]
     rows = as_vecs(frame.rotation)
-    turned_b = tuple(vdot(row, picked_b) for row in rows)
+    turned_b = tuple(vdot(row, picked[1]) for row in rows)
     axis = vselect(index < 3, picked_a, vselect(index < 6, turned_b, vcross(picked_a, turned_b)))
     # The winner is never degenerate: a face normal (unit) beats every invalid edge pair.
     squared = vdot(axis, axis)
