@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The GPU checks of the open issues, in one call on a machine with one NVIDIA GPU and JAX with
 # CUDA installed: the demo, the box kernel at 1e5-1e7 pairs, the peers' box rows (MJX on the
-# GPU, MuJoCo C on the host), the distance benchmark and the peers' distance rows (MuJoCo C's
+# GPU), the distance benchmark and the peers' distance rows (MuJoCo C's
 # mj_geomDistance on the host), and the fast test subset. Each step has its
 # own time limit, so one that fails or runs long does not stop the others.
 #
@@ -33,10 +33,11 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv
 python3 -c "import jax, numpy; print('jax', jax.__version__, 'numpy', numpy.__version__, jax.devices())"
 
 [[ $steps == *" demo "* ]] && step 60 python3 -m jaxsat demo --output "$results/demo-$tag.png"
-[[ $steps == *" kernels "* ]] && step 60 python3 benchmarks/kernels.py --cases 3d-boxes --sizes 100000 1000000 10000000 \
+[[ $steps == *" kernels "* ]] && step 120 python3 benchmarks/kernels.py --cases 3d-boxes --sizes 100000 1000000 10000000 \
     --output "$results/kernels-boxes-$tag"
+# MuJoCo C runs on the host in a Python loop; its rows are in results/peers-boxes-cpu-2core.
 [[ $steps == *" peers "* ]] && step 120 python3 benchmarks/peers.py --cases 3d-boxes \
-    --methods jaxsat jaxsat-chunked mjx mujoco-collision \
+    --methods jaxsat jaxsat-chunked mjx \
     --sizes 100000 1000000 10000000 --max-call-seconds 5 --repeats 3 --output "$results/peers-boxes-$tag"
 [[ $steps == *" distance "* ]] && step 330 python3 benchmarks/distance.py --sizes 100000 1000000 --output "$results/distance-$tag"
 [[ $steps == *" peers-distance "* ]] && step 150 python3 benchmarks/peers.py --cases 3d-boxes 3d-hulls \
