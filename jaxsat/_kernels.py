@@ -81,6 +81,8 @@ __all__ = [
     "vcross",
     "vcross2",
     "vdot",
+    "vrotate",
+    "vrotate_back",
     "vscale",
     "vselect",
     "vsub",
@@ -384,6 +386,17 @@ def vcross(x: Vec, y: Vec) -> Vec:
 def vcross2(x: Vec, y: Vec):
     """2D cross product, a scalar."""
     return x[0] * y[1] - x[1] * y[0]
+
+
+def vrotate(rows: list[Vec], x: Vec) -> Vec:
+    """R x for a rotation given by its rows as Vecs (`as_vecs(rotation)`)."""
+    return tuple(vdot(row, x) for row in rows)
+
+
+def vrotate_back(rows: list[Vec], x: Vec) -> Vec:
+    """R^T x for a rotation given by its rows as Vecs: the inverse of `vrotate`."""
+    return tuple(sum(row[k] * component for row, component in zip(rows, x, strict=True))
+                 for k in range(len(x)))
 
 
 def vselect(condition, x: Vec, y: Vec) -> Vec:

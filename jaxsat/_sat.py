@@ -39,6 +39,8 @@ from jaxsat._kernels import (
     vadd,
     vcross,
     vdot,
+    vrotate,
+    vrotate_back,
     vscale,
     vselect,
     vsub,
@@ -354,11 +356,10 @@ def _parallelepiped_axes(frame: PairFrame, rows) -> list[Vec]:
     (`Polytope.has_parallelepiped_frame`), in `ProjectedAxes`' order: a's 3 face normals,
     b's 3, then d_i x d'_j for a's edge i and b's edge j (candidate 6 + 3 i + j). `rows`:
     the rotation's rows as Vecs."""
-    turn = lambda vector: tuple(vdot(row, vector) for row in rows)  # noqa: E731
     edges_a = as_vecs(frame.a.edge_directions)
-    edges_b = [turn(edge) for edge in as_vecs(frame.b.edge_directions)]
+    edges_b = [vrotate(rows, edge) for edge in as_vecs(frame.b.edge_directions)]
     return (as_vecs(frame.a.face_normals)
-            + [turn(normal) for normal in as_vecs(frame.b.face_normals)]
+            + [vrotate(rows, normal) for normal in as_vecs(frame.b.face_normals)]
             + [vcross(edges_a[i], edges_b[j]) for i in range(3) for j in range(3)])
 
 
@@ -378,9 +379,8 @@ def _parallelepiped_winner(frame: PairFrame) -> jax.Array:
     centre_a, edges_a = parallelepiped_frame(a)
     centre_b, edges_b = parallelepiped_frame(b)
     rows = as_vecs(frame.rotation)
-    turn = lambda vector: tuple(vdot(row, vector) for row in rows)  # noqa: E731
-    edges_b = [turn(edge) for edge in edges_b]
-    offset = vsub(vadd(turn(centre_b), as_vec(frame.translation)), centre_a)
+    edges_b = [vrotate(rows, edge) for edge in edges_b]
+    offset = vsub(vadd(vrotate(rows, centre_b), as_vec(frame.translation)), centre_a)
     half_widths = [0.5 * (shape.face_extents[m, 1] - shape.face_extents[m, 0])
                    for shape in (a, b) for m in range(3)]
     eps = jnp.finfo(frame.dtype).eps
@@ -424,15 +424,14 @@ def _parallelepiped_search(frame: PairFrame) -> SatAxis:
         picked.append(chosen)
     picked_a = picked[0]
     rows = as_vecs(frame.rotation)
-    turned_b = tuple(vdot(row, picked[1]) for row in rows)
+    turned_b = vrotate(rows, picked[1])
     axis = vselect(index < 3, picked_a, vselect(index < 6, turned_b, vcross(picked_a, turned_b)))
     # The winner is never degenerate: a face normal (unit) beats every invalid edge pair.
     squared = vdot(axis, axis)
     unit = materialize(vscale(jax.lax.rsqrt(where(squared > 0, squared, 1.0)), axis))
     # b projected in its own frame on the axis turned back (R^T u), plus u . t: the same
     # values as projecting b's vertices moved into a's frame, without storing them.
-    unit_in_b = tuple(sum(row[k] * u for row, u in zip(rows, unit, strict=True))
-                      for k in range(3))
+    unit_in_b = vrotate_back(rows, unit)
     shift = vdot(unit, as_vec(frame.translation))
     b_min, b_max = extremes(list(unit_in_b), frame.b.vertices)
     depth, sign = _interval_depths(*extremes(list(unit), frame.a.vertices),
