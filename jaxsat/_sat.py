@@ -86,9 +86,7 @@ class ProjectedAxes(NamedTuple):
 
     def feature(self, index) -> jax.Array:
         """() int32: which `SatAxis.feature` candidate `index` is."""
-        return where(index < self.num_faces_a, FACE_OF_A,
-                         where(index < self.num_faces, FACE_OF_B, EDGE_PAIR)
-                         ).astype(jnp.int32)
+        return _feature(index, self.num_faces_a, self.num_faces)
 
 
 _ROW_BLOCK = 8
@@ -176,6 +174,13 @@ class Candidates(NamedTuple):
 
 FACE_OF_A, FACE_OF_B, EDGE_PAIR = 0, 1, 2
 """Values of `SatAxis.feature`: which kind of candidate gave the axis."""
+
+
+def _feature(index, num_faces_a: int, num_faces: int) -> jax.Array:
+    """() int32 `SatAxis.feature` of candidate `index` in the projected order: a's face
+    normals, then b's (up to `num_faces`), then edge pairs."""
+    return where(index < num_faces_a, FACE_OF_A,
+                 where(index < num_faces, FACE_OF_B, EDGE_PAIR)).astype(jnp.int32)
 
 
 def _interval_depths(a_min, a_max, b_min, b_max, store: bool = False):
@@ -436,8 +441,7 @@ def _parallelepiped_search(frame: PairFrame) -> SatAxis:
     b_min, b_max = extremes(list(unit_in_b), frame.b.vertices)
     depth, sign = _interval_depths(*extremes(list(unit), frame.a.vertices),
                                    b_min + shift, b_max + shift, store=True)
-    feature = where(index < 3, FACE_OF_A, where(index < 6, FACE_OF_B, EDGE_PAIR))
-    return SatAxis(depth, sign * jnp.stack(unit), feature.astype(jnp.int32))
+    return SatAxis(depth, sign * jnp.stack(unit), _feature(index, 3, 6))
 
 
 def sat_search(frame: PairFrame, prune: bool = True, box_kernel: bool = False) -> SatAxis:
