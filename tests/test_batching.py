@@ -10,6 +10,7 @@ subprocess with 4 CPU devices (see multidevice.py).
 from __future__ import annotations
 
 import functools
+import pathlib
 
 import jax
 import jax.numpy as jnp
@@ -200,6 +201,18 @@ def test_empty_batches():
     result = jaxsat.query_batch(jaxsat.penetration, *none, *none)
     assert result.depth.shape == (0,) and result.normal.shape == (0, 3)
     assert result.normal.dtype == np.float32
+
+
+def test_vmap_over_no_pairs_fails_in_jax_as_the_readme_says():
+    """`jax.vmap` of a query over 0 pairs raises JAX's IndexError (its checkify batching
+    rule reads a batched check's first entry), which README.md states next to the advice to
+    use `query_batch` there. When a JAX release lifts it, this fails: update the README."""
+    shapes, poses = _scene(3, 4, np.float32)
+    none = _entry((shapes, poses), slice(0, 0))
+    with pytest.raises(IndexError, match="size 0"):
+        jax.vmap(jaxsat.penetration)(*none, *none)
+    assert "A batch of 0 pairs fails under `jax.vmap`" in (
+        pathlib.Path(__file__).resolve().parents[1] / "README.md").read_text()
 
 
 @pytest.fixture(scope="module")
