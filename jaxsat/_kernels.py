@@ -197,11 +197,9 @@ def project(axes, points):
 
 
 def rotate(rotation, points):
-    """rotation @ p for (..., D) points, in component form (rule 1)."""
-    coordinates = columns(points)
-    return jnp.stack([sum(entry * coordinate for entry, coordinate in
-                          zip(row, coordinates, strict=True))
-                      for row in as_vecs(rotation)], axis=-1)
+    """rotation @ p for (..., D) points, in component form (rule 1): `vrotate` on the
+    points' columns."""
+    return jnp.stack(vrotate(as_vecs(rotation), tuple(columns(points))), axis=-1)
 
 
 def dot(x, y):
