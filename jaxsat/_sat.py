@@ -36,6 +36,7 @@ from jaxsat._kernels import (
     project,
     rotate,
     safe_normalize,
+    take_vec,
     vadd,
     vcross,
     vdot,
@@ -420,13 +421,8 @@ def _parallelepiped_search(frame: PairFrame) -> SatAxis:
     row, column = (index - 6) // 3, (index - 6) % 3
     of_a = where(index < 3, index, where(index >= 6, 3 + row, 0))
     of_b = where(index < 3, 0, where(index < 6, index - 3, 3 + column))
-    picked = []
-    for shape, choice in ((frame.a, of_a), (frame.b, of_b)):
-        choices = as_vecs(shape.face_normals) + as_vecs(shape.edge_directions)
-        chosen = choices[0]
-        for k in range(1, 6):
-            chosen = vselect(choice == k, choices[k], chosen)
-        picked.append(chosen)
+    picked = [take_vec(as_vecs(shape.face_normals) + as_vecs(shape.edge_directions), choice)
+              for shape, choice in ((frame.a, of_a), (frame.b, of_b))]
     picked_a = picked[0]
     rows = as_vecs(frame.rotation)
     turned_b = vrotate(rows, picked[1])
