@@ -64,6 +64,7 @@ __all__ = [
     "dot",
     "extremes",
     "explicit_float_dtype",
+    "inline_non_finite_poison",
     "largest_magnitude",
     "materialize",
     "orthonormal_basis",
@@ -144,7 +145,9 @@ def propagate_non_finite(outputs, inputs):
     overflow it. Its derivative with respect to each entry is defined as p: 0, or NaN.
     Written entry by entry (rule 2: a reduction would be a pass of its own over the inputs)
     and stored once (rule 5), it costs the SAT about 5-30% on 2D polygons and boxes (1e5
-    pairs, interleaved runs), against 30-130% as a reduction per input."""
+    pairs, interleaved runs), against 30-130% as a reduction per input. A kernel that reads
+    every input entry in one of its own passes can fold the guard into it instead
+    (`inline_non_finite_poison`)."""
     floats = [leaf for leaf in map(jnp.asarray, jax.tree.leaves(inputs))
               if jnp.issubdtype(leaf.dtype, jnp.floating)]
     if not floats:
@@ -172,22 +175,49 @@ def _non_finite_poison(*floats):
     return _nan_if_non_finite(*[leaf.astype(dtype) for leaf in floats])
 
 
+def _zero_times_every_entry(leaves) -> jax.Array:
+    """sum(0 * x) over every entry of the leaves, entry by entry (rule 2): 0, or NaN once one
+    is NaN or inf (0 * inf is NaN), and no finite input can overflow it."""
+    entries = [entry for leaf in leaves for entry in jnp.unstack(leaf.reshape(-1))]
+    return sum(entry * jnp.zeros((), entry.dtype) for entry in entries)
+
+
 @jax.custom_jvp
 def _nan_if_non_finite(*leaves):
-    """sum(0 * x) over every entry of the leaves, entry by entry (rule 2) and stored once
-    (rule 5): 0, or NaN once one is NaN or inf."""
-    entries = [entry for leaf in leaves for entry in jnp.unstack(leaf.reshape(-1))]
-    return materialize(sum(entry * jnp.zeros((), entry.dtype) for entry in entries))
+    """`_zero_times_every_entry`, stored once (rule 5)."""
+    return materialize(_zero_times_every_entry(leaves))
 
 
 @_nan_if_non_finite.defjvp
 def _nan_if_non_finite_jvp(primals, tangents):
     # d poison / d x = poison for every entry x: 0, or NaN. A rule rather than a second
     # chain of products in the value (stop_gradient(p) * tiny * x): one chain, stored once.
+    poison = _nan_if_non_finite(*primals)
+    return poison, _poison_tangent(poison, tangents)
+
+
+def _poison_tangent(poison, tangents):
     # Whole leaves, not entries: a gradient then spreads the cotangent over each leaf in one
     # broadcast, where slicing entries out of a leaf takes a pad and an add per entry.
-    poison = _nan_if_non_finite(*primals)
-    return poison, poison * sum(jnp.sum(tangent) for tangent in tangents)
+    return poison * sum(jnp.sum(tangent) for tangent in tangents)
+
+
+@jax.custom_jvp
+def inline_non_finite_poison(*leaves):
+    """The guard of `propagate_non_finite` (0, or NaN where some entry of the leaves is NaN or
+    inf, with the derivative 0, or NaN, in every entry), not stored: for a kernel that adds it
+    to a value it stores anyway, in a pass that already reads every entry of the leaves, so
+    that its query needs no guard pass of its own over the inputs (`_pair.Guarded`). The box
+    kernel adds it to its depth: box `penetration` and `intersects` then take 0.8x the time
+    on 1e5 pairs (0.9x on 1e4; 2-core AMD EPYC), the guard's own pass having read all 72
+    input entries of a pair once more."""
+    return _zero_times_every_entry(leaves)
+
+
+@inline_non_finite_poison.defjvp
+def _inline_non_finite_poison_jvp(primals, tangents):
+    poison = inline_non_finite_poison(*primals)
+    return poison, _poison_tangent(poison, tangents)
 
 
 def project(axes, points):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import inspect
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +21,7 @@ from jaxsat._kernels import project, propagate_non_finite, rotate
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
-__all__ = ["PairFrame", "cast_pair", "check_one_pair", "check_pair", "compiled_query",
+__all__ = ["Guarded", "PairFrame", "cast_pair", "check_one_pair", "check_pair", "compiled_query",
            "pair_frame", "relative_pose"]
 
 
@@ -162,12 +163,24 @@ def _checked_leaves(value) -> list:
     return [leaf for leaf in leaves if jnp.issubdtype(leaf.dtype, jnp.floating)]
 
 
+class Guarded(NamedTuple):
+    """A query's outputs that already hold the non-finite guard (`guard_non_finite` then
+    returns them as they are): every float output NaN, with NaN derivatives in every input
+    entry, and every boolean output False, where an input entry is NaN or inf. A query returns
+    this only where its kernel folded `_kernels.inline_non_finite_poison` over all the inputs
+    into a value every output reads (the box kernel's depth)."""
+
+    outputs: object
+    """The query's outputs (any pytree)."""
+
+
 def guard_non_finite(name: str, signature: inspect.Signature, function, args, kwargs,
                      named_errors: bool = True):
     """`function(*args, **kwargs)` with NaN float outputs (and NaN derivatives, and False
     boolean outputs) where a pose, vertex, radius, plane or scalar argument is NaN or inf
-    (`propagate_non_finite`). With `named_errors`, under `jax.experimental.checkify.checkify`
-    such an argument raises an error naming it (`checkify.debug_check`, a no-op elsewhere)."""
+    (`propagate_non_finite`; a `Guarded` result already holds that guard). With
+    `named_errors`, under `jax.experimental.checkify.checkify` such an argument raises an
+    error naming it (`checkify.debug_check`, a no-op elsewhere)."""
     bound = signature.bind(*args, **kwargs)
     inputs = []
     for argument, value in bound.arguments.items():
@@ -179,7 +192,10 @@ def guard_non_finite(name: str, signature: inspect.Signature, function, args, kw
                 checkify.debug_check(finite,
                                      f"jaxsat.{name}: argument '{argument}' holds NaN or inf")
             inputs.extend(leaves)
-    return propagate_non_finite(function(*args, **kwargs), inputs)
+    outputs = function(*args, **kwargs)
+    if isinstance(outputs, Guarded):
+        return outputs.outputs
+    return propagate_non_finite(outputs, inputs)
 
 
 def compiled_query(check, static_argnames=(), name=None):
@@ -225,7 +241,14 @@ def compiled_query(check, static_argnames=(), name=None):
                     compiler_options=eager_compiler_options(backend))
             return compiled(*args, **kwargs)
 
-        query.uncompiled = function
+        @functools.wraps(function)
+        def uncompiled(*args, **kwargs):
+            """The query's own outputs, unguarded: for a caller that guards its own outputs
+            (a compound query over its pieces)."""
+            outputs = function(*args, **kwargs)
+            return outputs.outputs if isinstance(outputs, Guarded) else outputs
+
+        query.uncompiled = uncompiled
         query.eager_function = guarded_eager  # what an eager call jits (tests read its effects)
         return query
 

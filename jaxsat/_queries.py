@@ -26,9 +26,16 @@ import numpy as np
 from jaxsat._closest import exact_distance, signed_distance_of_witnesses, witness
 from jaxsat._halfspace import check_kinds, is_plane_pair, plane_query
 from jaxsat._kernels import rotate
-from jaxsat._pair import PairFrame, cast_pair, check_one_pair, compiled_query, pair_frame
+from jaxsat._pair import (
+    Guarded,
+    PairFrame,
+    cast_pair,
+    check_one_pair,
+    compiled_query,
+    pair_frame,
+)
 from jaxsat._poses import Pose
-from jaxsat._sat import sat_search
+from jaxsat._sat import sat_search, takes_box_kernel
 from jaxsat._shapes import Polytope
 from jaxsat._smoothing import smooth_signed_distance
 
@@ -227,7 +234,12 @@ def penetration(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose, *,
         value, found = _exact_value(frame)
         return Penetration(depth=-value, normal=frame.direction_to_world(found.axis))
     found = sat_search(frame, prune, box_kernel=True)
-    return Penetration(depth=found.depth, normal=frame.direction_to_world(found.axis))
+    normal = frame.direction_to_world(found.axis)
+    if takes_box_kernel(frame.a, frame.b):
+        # The box kernel's depth holds the non-finite guard; the normal takes it from the
+        # stored depth (0 * depth: 0, or NaN), not from a pass over the inputs.
+        return Guarded(Penetration(depth=found.depth, normal=normal + 0 * found.depth))
+    return Penetration(depth=found.depth, normal=normal)
 
 
 
@@ -253,7 +265,10 @@ def intersects(a: Polytope, pose_a: Pose, b: Polytope, pose_b: Pose) -> jax.Arra
     a, pose_a, b, pose_b = cast_pair(a, pose_a, b, pose_b)
     # A boolean has no derivative; stopping gradients here keeps `custom_vmap` (which has no
     # reverse-mode rule) out of any gradient of a function that merely calls `intersects`.
-    return _intersects_pair(*jax.lax.stop_gradient((a, pose_a, b, pose_b)))
+    overlap = _intersects_pair(*jax.lax.stop_gradient((a, pose_a, b, pose_b)))
+    # With the box kernel, non-finite input gives False already: the SAT's depth is NaN
+    # (`takes_box_kernel`), and the single call's box test compares NaN corners.
+    return Guarded(overlap) if takes_box_kernel(a, b) else overlap
 
 
 def _sat_intersects(a, pose_a, b, pose_b) -> jax.Array:

@@ -32,6 +32,7 @@ from jaxsat._kernels import (
     cross,
     dot,
     extremes,
+    inline_non_finite_poison,
     materialize,
     project,
     rotate,
@@ -51,7 +52,7 @@ from jaxsat._pair import PairFrame
 from jaxsat._shapes import Polytope, parallelepiped_frame
 
 __all__ = ["EDGE_PAIR", "FACE_OF_A", "FACE_OF_B", "Candidates", "GaussMapAxes", "ProjectedAxes",
-           "SatAxis", "candidates", "sat_runner_up", "sat_search"]
+           "SatAxis", "candidates", "sat_runner_up", "sat_search", "takes_box_kernel"]
 
 
 class ProjectedAxes(NamedTuple):
@@ -184,12 +185,16 @@ def _feature(index, num_faces_a: int, num_faces: int) -> jax.Array:
                  where(index < num_faces, FACE_OF_B, EDGE_PAIR)).astype(jnp.int32)
 
 
-def _interval_depths(a_min, a_max, b_min, b_max, store: bool = False):
+def _interval_depths(a_min, a_max, b_min, b_max, store: bool = False, poison=None):
     """The better sense of each axis: depth min(b pushed along +n, along -n), and its sign
     (+1 at a tie). By a select, so that at a tie the whole gradient follows the chosen sense
     (`_kernels` rule 3). With `store`, the decision and the depth are stored (rule 5), the
-    decision first so that every reader turns the axis alike."""
+    decision first so that every reader turns the axis alike. A `poison`
+    (`inline_non_finite_poison`) is added to both senses' depths, in the pass that computes
+    them."""
     along, against = a_max - b_min, b_max - a_min
+    if poison is not None:
+        along, against = along + poison, against + poison
     turned = against < along
     if store:
         turned = materialize(turned)
@@ -413,7 +418,13 @@ def _parallelepiped_winner(frame: PairFrame) -> jax.Array:
 def _parallelepiped_search(frame: PairFrame) -> SatAxis:
     """`sat_search` for two parallelepipeds: the winner of the closed form
     (`_parallelepiped_winner`), stored, and its axis built from it alone and measured by
-    projecting both shapes' vertices (so depth, sense and gradients are the general path's)."""
+    projecting both shapes' vertices (so depth, sense and gradients are the general path's).
+
+    The depth holds the non-finite guard (`inline_non_finite_poison`), computed in the pass
+    that projects the vertices, over every input it depends on: both shapes' vertices, a's
+    rotation (the normal is turned by it), b's axis R^T u (a NaN or inf anywhere in either
+    rotation makes one of its components NaN or inf: NaN * 0 and inf * 0 are NaN) and
+    u . t (so does one in either translation)."""
     index = materialize(_parallelepiped_winner(frame))
     # The winner's inputs picked first (a's normal or edge, b's normal or edge in b's frame:
     # 6 choices a side), then turned and crossed once, rather than all 15 axes built and one
@@ -435,9 +446,18 @@ def _parallelepiped_search(frame: PairFrame) -> SatAxis:
     unit_in_b = vrotate_back(rows, unit)
     shift = vdot(unit, as_vec(frame.translation))
     b_min, b_max = extremes(list(unit_in_b), frame.b.vertices)
+    poison = inline_non_finite_poison(frame.a.vertices, frame.b.vertices,
+                                      frame.pose_a.rotation, jnp.stack(unit_in_b), shift)
     depth, sign = _interval_depths(*extremes(list(unit), frame.a.vertices),
-                                   b_min + shift, b_max + shift, store=True)
+                                   b_min + shift, b_max + shift, store=True, poison=poison)
     return SatAxis(depth, sign * jnp.stack(unit), _feature(index, 3, 6))
+
+
+def takes_box_kernel(a: Polytope, b: Polytope) -> bool:
+    """Static: `sat_search(..., box_kernel=True)` takes the box kernel for this pair (two sharp
+    parallelepipeds, `Polytope.has_parallelepiped_frame`). Its depth then holds the
+    non-finite guard, NaN where any input entry is NaN or inf (`_parallelepiped_search`)."""
+    return a.has_parallelepiped_frame and b.has_parallelepiped_frame
 
 
 def sat_search(frame: PairFrame, prune: bool = True, box_kernel: bool = False) -> SatAxis:
@@ -448,10 +468,11 @@ def sat_search(frame: PairFrame, prune: bool = True, box_kernel: bool = False) -
     Projected candidates need no such step. With `box_kernel` (static), two sharp
     parallelepipeds take a closed-form choice of the winner (`_parallelepiped_search`),
     measured by projection too: `penetration` and `intersects` take 0.35x the time on 1e5 box
-    pairs (0.7x on 1e4) on a 2-core CPU. The distance and contact queries leave it off: there
-    the SAT is a small part (3% faster with it) and it added 0.3-0.4 s to their compile
-    times."""
-    if box_kernel and frame.a.has_parallelepiped_frame and frame.b.has_parallelepiped_frame:
+    pairs (0.7x on 1e4) on a 2-core CPU. Its depth holds the non-finite guard
+    (`takes_box_kernel`), so the queries that use it skip the guard's own pass. The distance
+    and contact queries leave it off: there the SAT is a small part (3% faster with it) and
+    it added 0.3-0.4 s to their compile times."""
+    if box_kernel and takes_box_kernel(frame.a, frame.b):
         return _parallelepiped_search(frame)
     found = candidates(frame, prune)
     depth, axis, feature = _smallest(_winners(found))

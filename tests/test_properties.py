@@ -241,25 +241,25 @@ def test_a_common_rigid_motion_moves_points_and_normals_and_keeps_values(query, 
 
 
 def _poison(shape, i: int, bad: float):
-    """shape (batched) with entry i's plane offset (a half-space) or first vertex coordinate
-    set to `bad`."""
+    """shape (batched) with entry i's plane offset (a half-space) or one vertex coordinate
+    (which one varies with i) set to `bad`."""
     if isinstance(shape, jaxsat.HalfSpace):
         offset = np.array(shape.offset)
         offset[i] = bad
         return dataclasses.replace(shape, offset=offset)
     vertices = np.array(shape.vertices)
-    vertices[i, 0, 0] = bad
+    vertices[i, i % vertices.shape[1], i % vertices.shape[2]] = bad
     return dataclasses.replace(shape, vertices=vertices)
 
 
 NON_FINITE_SPOTS = ("translation of a", "rotation of b", "vertex or plane of a",
-                    "vertex or plane of b", "radius of b")
+                    "vertex or plane of b", "radius of b", "rotation of a", "translation of b")
 
 
 @every_query_class_dtype
 def test_non_finite_inputs_give_nan_values_and_gradients(query, size_class, dtype):
     """A NaN, inf or -inf in one place of a pair's input (each of `NON_FINITE_SPOTS` in turn:
-    a translation, a rotation parameter, a vertex or plane, a radius) makes every float
+    either translation, either rotation parameter, a vertex or plane, a radius) makes every float
     output and every pose gradient of that pair NaN, and every boolean output False; the
     other pairs of the batch keep their finite answers."""
     pairs = random_pairs(*pools(size_class, dtype), BATCH, np.random.default_rng(6), dtype)
@@ -269,6 +269,10 @@ def test_non_finite_inputs_give_nan_values_and_gradients(query, size_class, dtyp
         bad, spot = (np.nan, np.inf, -np.inf)[i % 3], NON_FINITE_SPOTS[i % len(NON_FINITE_SPOTS)]
         if spot == "translation of a":
             params_a[0][i, ...] = bad
+        elif spot == "translation of b":
+            params_b[0][i, ...] = bad
+        elif spot == "rotation of a":
+            params_a[-1][i, ...] = bad
         elif spot == "rotation of b":
             params_b[-1][i, ...] = bad
         elif spot == "vertex or plane of a":
