@@ -37,7 +37,6 @@ from jaxsat._kernels import (
     project,
     rotate,
     safe_normalize,
-    take_vec,
     vadd,
     vcross,
     vdot,
@@ -428,11 +427,14 @@ def _parallelepiped_search(frame: PairFrame) -> SatAxis:
     index = materialize(_parallelepiped_winner(frame))
     # The winner's inputs picked first (a's normal or edge, b's normal or edge in b's frame:
     # 6 choices a side), then turned and crossed once, rather than all 15 axes built and one
-    # picked.
+    # picked. Picked by indexing: each of the axis' three component passes then reads the
+    # picked vectors, where a select chain over the six read all of them (0.93x the time of
+    # box penetration at 1e5 pairs, 0.97x at 1e4; same results, bit for bit).
     row, column = (index - 6) // 3, (index - 6) % 3
     of_a = where(index < 3, index, where(index >= 6, 3 + row, 0))
     of_b = where(index < 3, 0, where(index < 6, index - 3, 3 + column))
-    picked = [take_vec(as_vecs(shape.face_normals) + as_vecs(shape.edge_directions), choice)
+    picked = [as_vec(where(choice < 3, shape.face_normals[choice % 3],
+                           shape.edge_directions[choice % 3]))
               for shape, choice in ((frame.a, of_a), (frame.b, of_b))]
     picked_a = picked[0]
     rows = as_vecs(frame.rotation)
