@@ -42,6 +42,7 @@ from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 import jaxsat
+from jaxsat._shapes import parallelepiped_frame
 
 BATCH = 128
 """Every batched call uses this many pairs (the last chunk is padded), so nothing recompiles."""
@@ -835,6 +836,29 @@ def _parallelepiped_points(rng: np.random.Generator) -> np.ndarray:
             rng.normal(size=4))
         return signs @ edges + rng.uniform(-0.3, 0.3, 3)
     return signs @ edges
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
+def test_parallelepiped_frame_spans_the_corners(dtype):
+    """The box kernel's frame of a parallelepiped (centre and three half-edge vectors, from
+    its face and edge data) gives back its corners: centre + sum_m s_m e_m over the eight
+    sign choices is the corner set, for boxes and sheared parallelepipeds off the origin."""
+    rng = np.random.default_rng(62)
+    for _ in range(12):
+        corners = _parallelepiped_points(rng)
+        shape = jaxsat.polyhedron(corners, dtype=dtype)
+        assert shape.has_parallelepiped_frame
+        frame = jax.jit(lambda s: jnp.stack([jnp.stack(v) for v in (
+            parallelepiped_frame(s)[0], *parallelepiped_frame(s)[1])]))(shape)
+        centre, half_edges = np.asarray(frame[0], np.float64), np.asarray(frame[1:], np.float64)
+        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+        spanned = centre + signs @ half_edges
+        size = np.max(np.abs(corners))
+        tolerance = {np.float64: 1e-12, np.float32: 1e-5}[dtype] * size
+        # Each spanned point is a corner, and each corner is spanned.
+        distances = np.linalg.norm(spanned[:, None] - corners[None], axis=-1)
+        assert np.max(np.min(distances, axis=1)) <= tolerance
+        assert np.max(np.min(distances, axis=0)) <= tolerance
 
 
 @pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
