@@ -843,14 +843,18 @@ def test_parallelepiped_frame_spans_the_corners(dtype):
     """The box kernel's frame of a parallelepiped (centre and three half-edge vectors, from
     its face and edge data) gives back its corners: centre + sum_m s_m e_m over the eight
     sign choices is the corner set, for boxes and sheared parallelepipeds off the origin."""
+    @jax.jit
+    def stacked_frame(shape):
+        centre, half_edges = parallelepiped_frame(shape)
+        return jnp.stack([jnp.stack(vector) for vector in (centre, *half_edges)])
+
     rng = np.random.default_rng(62)
     for _ in range(12):
         corners = _parallelepiped_points(rng)
         shape = jaxsat.polyhedron(corners, dtype=dtype)
         assert shape.has_parallelepiped_frame
-        frame = jax.jit(lambda s: jnp.stack([jnp.stack(v) for v in (
-            parallelepiped_frame(s)[0], *parallelepiped_frame(s)[1])]))(shape)
-        centre, half_edges = np.asarray(frame[0], np.float64), np.asarray(frame[1:], np.float64)
+        frame = np.asarray(stacked_frame(shape), np.float64)
+        centre, half_edges = frame[0], frame[1:]
         signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
         spanned = centre + signs @ half_edges
         size = np.max(np.abs(corners))
