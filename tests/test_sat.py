@@ -827,15 +827,18 @@ def test_large_batch_keeps_gauss_map_axis_sense_at_vertex_vertex_contact():
     assert np.all(np.asarray(found.normal) @ truth.normal > 1 - 1e-9)
 
 
+_CORNER_SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+"""The 8 corners of [-1, 1]^3."""
+
+
 def _parallelepiped_points(rng: np.random.Generator) -> np.ndarray:
     """The 8 corners of a parallelepiped: a box, or a sheared one off the origin."""
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
     edges = np.diag(rng.uniform(0.2, 1.0, 3))
     if rng.integers(2):
         edges = edges @ (np.eye(3) + rng.uniform(-0.5, 0.5, (3, 3))) @ oracle.rotation_3d(
             rng.normal(size=4))
-        return signs @ edges + rng.uniform(-0.3, 0.3, 3)
-    return signs @ edges
+        return _CORNER_SIGNS @ edges + rng.uniform(-0.3, 0.3, 3)
+    return _CORNER_SIGNS @ edges
 
 
 @pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
@@ -855,8 +858,7 @@ def test_parallelepiped_frame_spans_the_corners(dtype):
         assert shape.has_parallelepiped_frame
         frame = np.asarray(stacked_frame(shape), np.float64)
         centre, half_edges = frame[0], frame[1:]
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
-        spanned = centre + signs @ half_edges
+        spanned = centre + _CORNER_SIGNS @ half_edges
         size = np.max(np.abs(corners))
         tolerance = {np.float64: 1e-12, np.float32: 1e-5}[dtype] * size
         # Each spanned point is a corner, and each corner is spanned.

@@ -105,9 +105,9 @@ def _everything(params_a, params_b, a, b, tau):
     vector of a pose's parameters (what `jax.jacfwd` evaluates), reverse mode the JVP's
     transpose (what `jax.grad` evaluates: JAX's reverse mode is the transposed
     linearization). The searches are then traced and compiled once per distance, where the
-    value, `jax.grad` and `jax.jacfwd` each traced them: a 3D
-    class's program compiles in 0.44x the time (box, float64: 11.5 -> 5.1 s on a 2-core
-    AMD EPYC), with the same values and derivatives up to rounding."""
+    value, `jax.grad` and `jax.jacfwd` each traced them: a 3D class's program compiles in
+    0.44x the time (box, float64: 11.5 -> 5.1 s on a 2-core AMD EPYC), with the same values
+    and derivatives up to rounding."""
     inputs = (params_a, params_b, a.vertices, b.vertices)
     out = {}
     for name, smoothing in (("exact", None), ("smooth", tau)):
