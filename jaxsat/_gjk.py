@@ -142,16 +142,20 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
     dim = a_vertices.shape[-1]
     count_b = b_vertices.shape[0]
     dtype = a_vertices.dtype
-    a_points, b_points = k.as_vecs(a_vertices), k.as_vecs(b_vertices)
+    # The loop reads the vertices as columns, split into points where it reads them
+    # (`_kernels` rule 8).
+    a_columns, b_columns = k.columns(a_vertices), k.columns(b_vertices)
     faces = _faces_with_new_point(dim)
 
     def point_of(pair) -> Vec:
         """b_j - a_i for pair = i * V_b + j (-1, an empty slot, reads pair 0)."""
+        a_points, b_points = k.vecs_of_columns(a_columns), k.vecs_of_columns(b_columns)
         pair = jnp.maximum(pair, 0)
         return k.vsub(k.take_vec(b_points, pair % count_b), k.take_vec(a_points, pair // count_b))
 
     def support_pair(v: Vec):
         """i * V_b + j of the support point of B - A along -v."""
+        a_points, b_points = k.vecs_of_columns(a_columns), k.vecs_of_columns(b_columns)
         return (k.support_index(v, a_points) * count_b
                 + k.support_index(k.vscale(-1.0, v), b_points))
 

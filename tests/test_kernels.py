@@ -281,3 +281,20 @@ def test_support_gap_and_largest_magnitude_equal_numpy_without_a_reduction(dtype
     assert "reduce" not in jax.jit(jax.vmap(support_gap)).lower(axis, a, b).as_text()
     np.testing.assert_array_equal(jax.vmap(largest_magnitude)(a), np.abs(a).max(axis=(1, 2)))
     assert "reduce" not in jax.jit(jax.vmap(largest_magnitude)).lower(a).as_text()
+
+
+def test_gjk_loop_reads_the_vertices_as_columns():
+    """Rule 8: every array a loop reads from outside is computed by a kernel of its own before
+    it. GJK's loop takes each hull's D coordinate columns, not V x D coordinates (120 kernels
+    for two 20-vertex hulls, 0.85 s of LLVM time in a hull distance's compile)."""
+    from jaxsat._gjk import closest_point_gjk
+
+    rng = np.random.default_rng(3)
+    a, b = (jnp.asarray(rng.normal(size=(4, 20, 3)), jnp.float32) for _ in range(2))
+    direction = jnp.ones((4, 3), jnp.float32)
+    closed = jax.make_jaxpr(jax.vmap(
+        lambda a, b, u: closest_point_gjk(a, b + 3.0, u, 1e-6, 8)))(a, b, direction)
+    loops = [eqn for eqn in closed.jaxpr.eqns if eqn.primitive.name == "while"]
+    assert len(loops) == 1
+    captured = loops[0].invars[:loops[0].params["body_nconsts"]]
+    assert len(captured) <= 2 * 3, [var.aval for var in captured]
