@@ -290,6 +290,19 @@ def timed(function):
     start = time.perf_counter()
     return function(), time.perf_counter() - start
 
+def fresh_pages_bytes(call, calls: int = 3) -> int | None:
+    """Bytes of memory first touched per call (minor page faults x page size): a program
+    whose temporaries glibc maps afresh on every call (over 32 MB) pays for zeroing them."""
+    try:
+        import resource
+    except ImportError:  # not on Windows
+        return None
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(calls):
+        jax.block_until_ready(call())
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+    return faults * resource.getpagesize() // calls
+
 def compile_aot(function, *arguments) -> Compiled:
     """`jax.jit(function)` compiled for these (real or abstract) arguments."""
     compiled = Compiled(*timed(lambda: jax.jit(function).lower(*arguments).compile()))
@@ -339,6 +352,8 @@ def machine_info(distributions=("jax", "jaxlib", "jaxsat", "numpy", "scipy")) ->
             "versions": {name: next((d.version for d in importlib.metadata.distributions(
                 name=name)), None) for name in distributions},
             "git_commit": commit and commit + "+dirty" * bool(dirty),
+            "allocator": " ".join(f"{k}={v}" for k, v in sorted(os.environ.items()) if k in (
+                "GLIBC_TUNABLES", "LD_PRELOAD") or k.startswith("MALLOC_")) or "default",
             "backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()]}
 
 LIMITS = {"--budget-seconds": "stop repeating once the timed calls add up to this",
@@ -384,9 +399,9 @@ def save(args, name: str, title: str, info: dict, payload: dict, table: str):
     info["load_average_end"], info["run_seconds"] = load_average(), time.perf_counter() - STARTED
     versions = ", ".join(f"{k} {v}" for k, v in info["versions"].items() if v)
     text = ("{title}, {date_utc}, git {git_commit}\n\nMachine: {cpu_model}, {cpu_count} CPUs, "
-            "{platform}, {backend}; load average {load_average_start} at start, {load_average_end}"
-            " at end; {run_seconds:.0f} s. Versions: {installed}.\n\n").format(
-                title=title, installed=versions, **info) + table
+            "{platform}, {backend}, allocator {allocator}; load average {load_average_start} at "
+            "start, {load_average_end} at end; {run_seconds:.0f} s. Versions: {installed}."
+            "\n\n").format(title=title, installed=versions, **info) + table
     print("\n" + text)
     prefix = args.output or (None if args.quick else HERE / "results" / f"{name}-cpu-2core")
     if prefix is None or args.no_save:
