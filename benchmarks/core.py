@@ -290,9 +290,10 @@ def timed(function):
     start = time.perf_counter()
     return function(), time.perf_counter() - start
 
-def fresh_pages_bytes(call, calls: int = 3) -> int | None:
-    """Bytes of memory first touched per call (minor page faults x page size): a program
-    whose temporaries glibc maps afresh on every call (over 32 MB) pays for zeroing them."""
+def page_faults(call, calls: int = 3) -> float | None:
+    """Minor page faults per call: memory the call touches for the first time. glibc maps
+    allocations over 32 MB afresh and unmaps them on free, so a program with temporaries that
+    large faults them in, zeroed, on every call (4 KiB a fault; 2 MiB with huge pages)."""
     try:
         import resource
     except ImportError:  # not on Windows
@@ -300,8 +301,7 @@ def fresh_pages_bytes(call, calls: int = 3) -> int | None:
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     for _ in range(calls):
         jax.block_until_ready(call())
-    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
-    return faults * resource.getpagesize() // calls
+    return (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before) / calls
 
 def compile_aot(function, *arguments) -> Compiled:
     """`jax.jit(function)` compiled for these (real or abstract) arguments."""

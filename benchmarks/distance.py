@@ -43,7 +43,7 @@ def measure(data: core.DataSet, pairs: int, rounds: int) -> dict:
         best = timings[name].best
         row[name] = {"pairs_per_s": pairs / best, "compile_s": c.seconds, "bytes": c.memory_bytes,
                      "temp_bytes": c.temp_bytes, "ratio": best / timings["penetration"].best,
-                     "fresh_bytes": core.fresh_pages_bytes(lambda c=c: c.call(*batch))}
+                     "page_faults": core.page_faults(lambda c=c: c.call(*batch))}
         if name != "penetration":
             _, grads = timings[name].output
             row[name]["max_translation_gradient"] = float(max(np.linalg.norm(np.asarray(
@@ -72,19 +72,18 @@ def markdown(rows: list[dict], eager: dict) -> str:
               ratio(row, "exact"), ratio(row, "smooth"),
               " / ".join(f"{row[k]['compile_s']:.1f}" for k in KERNELS),
               f"{row['exact']['bytes'] / 2**20:.0f} ({row['exact']['temp_bytes'] / 2**20:.0f})",
-              " / ".join(core.num(row[k]["fresh_bytes"] and row[k]["fresh_bytes"] / 2**20)
-                         for k in KERNELS),
+              " / ".join(core.num(row[k]["page_faults"]) for k in KERNELS),
               f"{row['exact']['max_translation_gradient']:.6f} / "
               f"{row['smooth']['max_translation_gradient']:.6f}"] for row in rows]
     return (f"float32, tau = {TAU}, best of interleaved rounds. Exact MiB: what the compiled "
             "exact value+grad kernel needs (inputs, outputs, temporaries); in brackets its "
-            "temporaries alone. Fresh MiB: memory first touched per call (page faults), which "
-            "glibc maps anew for temporaries over 32 MB (see benchmarks/README.md).\n\n"
+            "temporaries alone. Page faults: per call, where memory is touched for the first "
+            "time (glibc maps temporaries over 32 MB anew on every call; benchmarks/README.md).\n\n"
             + core.markdown_table(
                 ["data set", "pairs", "penetration pairs/s", "exact value+grad: pairs/s, "
                  "x penetration (target)", "smooth value+grad: pairs/s, x penetration (target)",
                  "compile s (pen / exact / smooth)", "exact MiB",
-                 "fresh MiB per call (pen / exact / smooth)", "max translation grad"], table)
+                 "page faults per call (pen / exact / smooth)", "max translation grad"], table)
             + "\nEager calls of the public queries on one pair (first call compiles; warm: "
             "best of 20).\n\n" + core.markdown_table(
                 ["data set", "query", "first call s", "warm ms"],
