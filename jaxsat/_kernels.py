@@ -83,6 +83,7 @@ __all__ = [
     "segment_closest_parameters",
     "support_index",
     "take_vec",
+    "transposed_product",
     "Vec",
     "as_vec",
     "as_vecs",
@@ -231,6 +232,17 @@ def project(axes, points):
     """(C, D) axes . (V, D) points -> (C, V), in component form (rule 1)."""
     return sum(axis[:, None] * coordinate[None, :]
                for axis, coordinate in zip(columns(axes), columns(points), strict=True))
+
+
+def transposed_product(x, y):
+    """x^T y for two (D, D) matrices, entry by entry from their scalar entries (rule 1). Not
+    `project(x.T, y.T)`: its outer products broadcast, and a gradient turns each broadcast
+    into a reduction, a pass of its own (four of the passes of a 2D exact distance's gradient,
+    a quarter of its time at 1e5 pairs)."""
+    x_rows, y_rows = as_vecs(x), as_vecs(y)
+    dim = len(x_rows)
+    return jnp.stack([jnp.stack([sum(x_rows[k][i] * y_rows[k][j] for k in range(dim))
+                                 for j in range(dim)]) for i in range(dim)])
 
 
 def rotate(rotation, points):

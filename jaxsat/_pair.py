@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jax.experimental import checkify
 
-from jaxsat._kernels import project, propagate_non_finite, rotate
+from jaxsat._kernels import propagate_non_finite, rotate, transposed_product
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
@@ -65,9 +65,8 @@ def cast_pair(a, pose_a, b, pose_b):
 
 def relative_pose(pose_a: Pose, pose_b: Pose) -> tuple[jax.Array, jax.Array]:
     """(rotation, translation) mapping b's local coordinates into a's local frame."""
-    rotation_a_t = pose_a.rotation.T
-    return (project(rotation_a_t, pose_b.rotation.T),
-            rotate(rotation_a_t, pose_b.translation - pose_a.translation))
+    return (transposed_product(pose_a.rotation, pose_b.rotation),
+            rotate(pose_a.rotation.T, pose_b.translation - pose_a.translation))
 
 
 @jax.tree_util.register_dataclass
