@@ -211,10 +211,13 @@ def _projected_axes(a: Polytope, b: Polytope, b_vertices_in_a, rotation,
     axes = [jnp.concatenate([a.face_normals[:, k], normals_b[:, k]]) for k in range(a.dim)]
     squared = jnp.ones_like(axes[0])
     if with_edges:
-        crosses = cross(a.edge_directions[:, None, :],
-                         rotate(rotation, b.edge_directions)[None, :, :]).reshape(-1, 3)
-        axes = [jnp.concatenate([axis, crosses[:, k]]) for k, axis in enumerate(axes)]
-        crosses_squared = crosses[:, 0] ** 2 + crosses[:, 1] ** 2 + crosses[:, 2] ** 2
+        # Each component its own (E_a E_b,) array: stacked as (E_a, E_b, 3) and sliced, they
+        # took a pass of their own over the batch.
+        crosses = [c.reshape(-1) for c in vcross(
+            tuple(c[:, None] for c in columns(a.edge_directions)),
+            tuple(c[None, :] for c in columns(rotate(rotation, b.edge_directions))))]
+        axes = [jnp.concatenate([axis, crosses[k]]) for k, axis in enumerate(axes)]
+        crosses_squared = crosses[0] ** 2 + crosses[1] ** 2 + crosses[2] ** 2
         squared = jnp.concatenate([squared, crosses_squared])
     eps = jnp.finfo(squared.dtype).eps
     valid = squared > eps * eps  # parallel edges give no axis
