@@ -235,14 +235,13 @@ def project(axes, points):
 
 
 def transposed_product(x, y):
-    """x^T y for two (D, D) matrices, entry by entry from their scalar entries (rule 1). Not
-    `project(x.T, y.T)`: its outer products broadcast, and a gradient turns each broadcast
-    into a reduction, a pass of its own (four in a 2D exact distance's value and gradient,
-    which took 1.1-1.2x as long with them)."""
+    """x^T y for two (D, D) matrices, entry by entry from their scalar entries (rule 1):
+    `vrotate_back` by x of each column of y. Not `project(x.T, y.T)`: its outer products
+    broadcast, and a gradient turns each broadcast into a reduction, a pass of its own (four
+    in a 2D exact distance's value and gradient, which took 1.1-1.2x as long with them)."""
     x_rows, y_rows = as_vecs(x), as_vecs(y)
-    dim = len(x_rows)
-    return jnp.stack([jnp.stack([sum(x_rows[k][i] * y_rows[k][j] for k in range(dim))
-                                 for j in range(dim)]) for i in range(dim)])
+    return jnp.stack([jnp.stack(vrotate_back(x_rows, tuple(row[j] for row in y_rows)))
+                      for j in range(len(y_rows))], axis=-1)
 
 
 def rotate(rotation, points):
