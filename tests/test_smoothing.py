@@ -483,6 +483,9 @@ def test_off_the_cpu_both_3d_searches_run_and_give_the_same_answer(monkeypatch):
         kernel = jax.jit(jax.vmap(value_and_gradients), compiler_options=FAST_COMPILE)
         return kernel.lower(*pairs.inputs()).as_text(), kernel(*pairs.inputs())
 
+    # Both backends named, so that the test compares the two paths on any machine (on a GPU,
+    # the first run would otherwise take the GPU path too).
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
     cpu_program, on_cpu = run()
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     program, elsewhere = run()
