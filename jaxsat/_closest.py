@@ -211,11 +211,15 @@ def signed_distance_of_witnesses(frame: PairFrame, found: ExactDistance):
     q is formed in b's own frame and then moved into a's, so that the derivative flows back
     through one point rather than through all of b's moved vertices (the same value: the map
     is affine). `found` is stored once (`_kernels` rule 5): it feeds the value and every
-    gradient."""
+    gradient. So are p and q in their shapes' frames: every gradient reads them, and without
+    it XLA gave each comparison of a stored index with a vertex number a pass of its own (78
+    in a 20-vertex hull pair's value and gradient, 30 for boxes). Stored, box pairs' exact
+    value and gradient took 0.69x / 0.78x the time at 1e4 / 1e5 pairs and hulls' 0.92x, and
+    the hull program compiled in 3.0 s instead of 3.9 s (2-core AMD EPYC)."""
     found = k.materialize(found)
-    witness_a = witness(found.weights, frame.a.vertices, found.index_a)
-    witness_b = (k.rotate(frame.rotation, witness(found.weights, frame.b.vertices, found.index_b))
-                 + frame.translation)
+    witness_a, local_b = k.materialize((witness(found.weights, frame.a.vertices, found.index_a),
+                                        witness(found.weights, frame.b.vertices, found.index_b)))
+    witness_b = k.rotate(frame.rotation, local_b) + frame.translation
     gap = k.dot(found.axis, witness_b - witness_a)
     return found.distance + (gap - jax.lax.stop_gradient(gap))
 

@@ -6,6 +6,7 @@ against the oracle's closest points of two segments."""
 from __future__ import annotations
 
 import collections
+import re
 
 import jax
 import jax.numpy as jnp
@@ -298,6 +299,27 @@ def test_gjk_loop_reads_the_vertices_as_columns():
     assert len(loops) == 1
     captured = loops[0].invars[:loops[0].params["body_nconsts"]]
     assert len(captured) <= 2 * 3, [var.aval for var in captured]
+
+
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="XLA CPU's fusion choice")
+def test_exact_distance_gradient_compares_each_witness_index_in_one_pass():
+    """The witness points p and q, in their shapes' frames, are stored once
+    (`_closest.signed_distance_of_witnesses`): without it, XLA CPU gave each comparison of a
+    stored witness index with a vertex number a pass of its own in the batched value and
+    gradient (30 passes that output one bool a pair, for box pairs; 78 for 20-vertex hulls)."""
+    from harness import make_pose, pool, random_pairs
+
+    shapes = pool("box", np.float32)
+    pairs = random_pairs(shapes, shapes, 16, np.random.default_rng(8), np.float32)
+
+    def value_and_gradients(a, params_a, b, params_b):
+        def value(pa, pb):
+            return jaxsat.signed_distance(a, make_pose(pa), b, make_pose(pb))
+        return jax.value_and_grad(value, argnums=(0, 1))(params_a, params_b)
+
+    text = jax.jit(jax.vmap(value_and_gradients)).lower(*pairs.inputs()).compile().as_text()
+    bools_per_pair = re.findall(r"(?m)^\s*(?:ROOT )?%\S+ = pred\[16(?:,1)?\]\S* fusion\(", text)
+    assert len(bools_per_pair) <= 4, len(bools_per_pair)
 
 
 @pytest.mark.parametrize("dim", [2, 3])
