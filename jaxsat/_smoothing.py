@@ -426,8 +426,15 @@ def _searches(frame: PairFrame, tau, starts, wanted):
 
 
 SEARCH_CHUNKS = 8
-"""A batch's wanted searches run in chunks of 1/8 of all its searches (at least one), as many
-chunks as they fill."""
+"""A batch's wanted searches run in chunks of at most 1/8 of all its searches (at least one)
+and at most `SEARCH_CHUNK_SIZE`, as many chunks as they fill."""
+
+SEARCH_CHUNK_SIZE = 512
+"""The most searches in one chunk. Smaller chunks waste less on the last one, which the wanted
+searches fill only in part, and keep a chunk's data in the cache; more chunks cost more
+passes (about 80 us a chunk for box pairs). Box pairs' smooth value and gradient, against
+chunks of 1/8 alone: 0.98x the time at 4,480 pairs, 0.89x at 1e4, 0.95x at 1e5; 20-vertex
+hulls 0.95x at 1e4; 1.00x at 1e3 (a 2-core AMD EPYC)."""
 
 
 @_searches.def_vmap
@@ -443,7 +450,7 @@ def _searches_vmap(axis_size, in_batched, frame, tau, starts, wanted):
     per_pair = starts.shape[1]
     slots = axis_size * per_pair
     starts, wanted = starts.reshape(slots, -1), wanted.reshape(slots)
-    chunk = max(1, -(-slots // SEARCH_CHUNKS))
+    chunk = max(1, min(SEARCH_CHUNK_SIZE, -(-slots // SEARCH_CHUNKS)))
     # The wanted slots, then `slots` (out of range: dropped when written). Each wanted slot
     # goes to its rank among them (`jnp.nonzero` would trace a nested `jnp.where`).
     size = chunk * -(-slots // chunk)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 
 import jax
+import jax.extend
 import jax.numpy as jnp
 import numpy as np
 import oracle
@@ -431,16 +432,20 @@ def test_the_newton_steps_reach_the_maximiser_of_a_long_search(name, monkeypatch
     assert np.max(gaps) < 2e-6, (np.max(gaps), int(np.sum(gaps >= 2e-6)))
 
 
+@pytest.mark.parametrize("chunk_size", [None, 4], ids=["eighth", "capped"])
 @pytest.mark.parametrize("name", ["box", "hull8"])
-def test_batched_searches_equal_single_calls(name):
+def test_batched_searches_equal_single_calls(name, chunk_size, monkeypatch):
     """In 3D, `vmap` of the two searches runs only the wanted ones, gathered in chunks of 1/8
-    of the batch's searches: on 37 pairs (74 searches: chunks of 10, the last one partly
-    padding), every first and about half of the second searches wanted, the batched results
-    equal single calls, and an unwanted search gives its start, with loss and slope inf.
+    of the batch's searches or `SEARCH_CHUNK_SIZE`, the smaller: on 37 pairs (74 searches:
+    chunks of 10, or of 4 with the size capped at 4; the last one partly padding), every first
+    and about half of the second searches wanted, the batched results equal single calls, and
+    an unwanted search gives its start, with loss and slope inf.
     (Axes and losses equal to 1e-6: the two programs are fused differently, and a search that
     ends unconverged, as some from the runner-up do, carries that rounding along its steps to
     about 1e-7. A search written to the wrong slot would be off by the distance between two
     axes, of order 1.)"""
+    if chunk_size is not None:
+        monkeypatch.setattr(smoothing, "SEARCH_CHUNK_SIZE", chunk_size)
     shapes = pool(name, np.float64)
     pairs = random_pairs(shapes, shapes, 37, np.random.default_rng(72), np.float64)
     needed = np.random.default_rng(73).random(37) < 0.5
@@ -464,6 +469,30 @@ def test_batched_searches_equal_single_calls(name):
     np.testing.assert_array_equal(batched[0][skipped, 1], starts[skipped, 1])
     assert np.all(np.isinf(batched[1][skipped, 1])) and np.all(np.isinf(batched[2][skipped, 1]))
     assert np.all(np.isfinite(batched[1][needed])) and np.all(np.isfinite(batched[1][:, 0]))
+
+
+def test_a_large_batch_searches_in_chunks_of_at_most_the_chunk_size(monkeypatch):
+    """On the CPU, 4,096 box pairs (8,192 searches, an eighth 1,024) take their smooth
+    distance's searches in chunks of `SEARCH_CHUNK_SIZE` (512): the chunk loop slices that many
+    rows of the wanted list at a time."""
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
+    shapes = pool("box", np.float32)
+    pairs = random_pairs(shapes, shapes, 4096, np.random.default_rng(76), np.float32)
+
+    def value(a, params_a, b, params_b):
+        return jaxsat.signed_distance(a, make_pose(params_a), b, make_pose(params_b),
+                                      smoothing=0.01)
+
+    def slice_sizes(jaxpr):
+        for eqn in jaxpr.eqns:
+            if eqn.primitive.name == "dynamic_slice":
+                yield eqn.params["slice_sizes"]
+            for inner in jax.extend.core.jaxprs_in_params(eqn.params):
+                yield from slice_sizes(inner)
+
+    closed = jax.make_jaxpr(jax.vmap(value))(*pairs.inputs())
+    assert smoothing.SEARCH_CHUNK_SIZE == 512
+    assert [size for size in slice_sizes(closed.jaxpr) if size[0] > 1] == [(512,)]
 
 
 def test_off_the_cpu_both_3d_searches_run_and_give_the_same_answer(monkeypatch):
