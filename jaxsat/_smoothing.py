@@ -425,16 +425,18 @@ def _searches(frame: PairFrame, tau, starts, wanted):
             where(wanted, slopes, inf))
 
 
-SEARCH_CHUNKS = 8
-"""A batch's wanted searches run in chunks of at most 1/8 of all its searches (at least one)
-and at most `SEARCH_CHUNK_SIZE`, as many chunks as they fill."""
+SEARCH_CHUNK_SIZE = {2: 2048, 3: 512}
+"""The most searches in one chunk, by dimension. Chunks keep a batch's search data in the
+cache: 2D polygons' smooth value and gradient took 0.67x the time at 1e5 pairs in chunks of
+2,048 (0.89x at 1e4) against one vmap over all searches. Smaller chunks cost more passes
+(about 10 us a chunk in 2D, 80 us in 3D); in 3D, where only the wanted searches run, they
+also waste less on the last chunk, which those fill only in part: box pairs, against chunks
+of 1/8 of the batch alone, 0.98x at 4,480 pairs, 0.89x at 1e4, 0.95x at 1e5; 20-vertex
+hulls 0.95x at 1e4 (a 2-core AMD EPYC)."""
 
-SEARCH_CHUNK_SIZE = 512
-"""The most searches in one chunk. Smaller chunks waste less on the last one, which the wanted
-searches fill only in part, and keep a chunk's data in the cache; more chunks cost more
-passes (about 80 us a chunk for box pairs). Box pairs' smooth value and gradient, against
-chunks of 1/8 alone: 0.98x the time at 4,480 pairs, 0.89x at 1e4, 0.95x at 1e5; 20-vertex
-hulls 0.95x at 1e4; 1.00x at 1e3 (a 2-core AMD EPYC)."""
+SEARCH_CHUNKS = 8
+"""In 3D, at least this many chunks: a small batch's wanted searches then fill all but the
+last, and the others are skipped."""
 
 
 @_searches.def_vmap
@@ -450,7 +452,8 @@ def _searches_vmap(axis_size, in_batched, frame, tau, starts, wanted):
     per_pair = starts.shape[1]
     slots = axis_size * per_pair
     starts, wanted = starts.reshape(slots, -1), wanted.reshape(slots)
-    chunk = max(1, min(SEARCH_CHUNK_SIZE, -(-slots // SEARCH_CHUNKS)))
+    chunks = max(-(-slots // SEARCH_CHUNK_SIZE[frame.dim]), SEARCH_CHUNKS if frame.dim == 3 else 1)
+    chunk = max(1, -(-slots // chunks))
     # The wanted slots, then `slots` (out of range: dropped when written). Each wanted slot
     # goes to its rank among them (`jnp.nonzero` would trace a nested `jnp.where`).
     size = chunk * -(-slots // chunk)
@@ -493,7 +496,13 @@ def _maximiser(frame: PairFrame, tau):
     apart = jnp.clip(_SECOND_START_ANGLE * tau / extent, 1e-3, 0.5)
     exact = exact_distance(frozen)
     starts = jnp.stack([exact.axis, sat_runner_up(frozen, exact.axis, apart)])
-    if frozen.dim == 3 and jax.default_backend() == "cpu":
+    if frozen.dim == 2 and jax.default_backend() == "cpu":
+        # In 2D both searches always run: the first search alone took 1.08x as long as both
+        # together on 1e5 pairs (XLA's passes over a batch of 2N axes cost about what they
+        # cost over N), so skipping saves nothing. On the CPU they run in chunks
+        # (`_searches_vmap`), which keep their data in the cache.
+        axes, losses, slopes = _searches(frozen, tau, starts, jnp.ones((2,), bool))
+    elif frozen.dim == 3 and jax.default_backend() == "cpu":
         # Where the exact distance exceeds c tau (c = log(n_a n_b), `smoothing_error_bound`),
         # soft_gap > 0 at the first start already, and a positive maximum is the only one as
         # high: where soft_gap > 0, gap > 0 too and soft_gap rises along every ray (each
@@ -506,13 +515,10 @@ def _maximiser(frame: PairFrame, tau):
         wanted = jnp.stack([jnp.ones_like(needed), needed])
         axes, losses, slopes = _searches(frozen, tau, starts, wanted)
     else:
-        # In 2D both searches always run, as one vmap over the two starts: the first search
-        # alone took 1.08x as long as both together on 1e5 pairs (XLA's passes over a batch
-        # of 2N axes cost about what they cost over N), so skipping saves nothing. Off the
-        # CPU too: on an H100 the skipping batching rule's chunks (each 1/8 of the batch's
-        # searches, run one after another) left box pairs' value and gradient 2.6x slower at
-        # 1e5 pairs (1.34e7 against 3.45e7 pairs/s) and no faster at 1e6
-        # (benchmarks/results/gpu-nvidia-h100.md).
+        # Off the CPU both searches run as one vmap over the two starts: on an H100 the
+        # skipping batching rule's chunks (each 1/8 of the batch's searches, run one after
+        # another) left box pairs' value and gradient 2.6x slower at 1e5 pairs (1.34e7
+        # against 3.45e7 pairs/s) and no faster at 1e6 (benchmarks/results/gpu-nvidia-h100.md).
         axes, losses, slopes = jax.vmap(_search, in_axes=(None, None, 0))(frozen, tau, starts)
     # Near a maximum soft_gap changes only to second order, so an axis 1e-8 off the maximum
     # (a search that ran out of steps) has a value equal to the maximum up to rounding, but

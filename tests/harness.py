@@ -52,6 +52,17 @@ them is checked against the default build first."""
 # --------------------------------------------------------------------------------------------
 
 
+def inner_jaxprs(eqn):
+    """The jaxprs an equation holds in its parameters (loop bodies, branches, custom rules,
+    nested jits), as open jaxprs: what `jax.extend.core.jaxprs_in_params` gives on newer JAX
+    (jax 0.6, the floor, lacks it)."""
+    for param in eqn.params.values():
+        for sub in param if isinstance(param, (tuple, list)) else (param,):
+            inner = getattr(sub, "jaxpr", None)
+            if inner is not None:
+                yield getattr(inner, "jaxpr", inner)
+
+
 def f32(values) -> np.ndarray:
     """Values rounded to float32 and back: inputs both dtypes see exactly."""
     return np.asarray(values, np.float64).astype(np.float32).astype(np.float64)

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import oracle
 import pytest
+from harness import inner_jaxprs, make_pose, pool, random_pairs
 
 import jaxsat
 from jaxsat import _compound, _contacts, _queries
@@ -61,11 +62,8 @@ def _nested_jits(jaxpr) -> collections.Counter:
         if eqn.primitive.name in ("jit", "pjit"):
             names[eqn.params["name"]] += 1
             continue
-        for param in eqn.params.values():
-            for sub in param if isinstance(param, (tuple, list)) else (param,):
-                inner = getattr(sub, "jaxpr", None)
-                if inner is not None:
-                    names += _nested_jits(getattr(inner, "jaxpr", inner))
+        for inner in inner_jaxprs(eqn):
+            names += _nested_jits(inner)
     return names
 
 
@@ -307,8 +305,6 @@ def test_exact_distance_gradient_compares_each_witness_index_in_one_pass():
     (`_closest.signed_distance_of_witnesses`): without it, XLA CPU gave each comparison of a
     stored witness index with a vertex number a pass of its own in the batched value and
     gradient (30 passes that output one bool a pair, for box pairs; 78 for 20-vertex hulls)."""
-    from harness import make_pose, pool, random_pairs
-
     shapes = pool("box", np.float32)
     pairs = random_pairs(shapes, shapes, 16, np.random.default_rng(8), np.float32)
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 import dataclasses
 
 import jax
-import jax.extend
 import jax.numpy as jnp
 import numpy as np
 import oracle
@@ -39,6 +38,7 @@ from harness import (
     Pairs,
     hand_built_pairs,
     hand_pool,
+    inner_jaxprs,
     make_pool,
     make_pose,
     pool,
@@ -445,7 +445,7 @@ def test_batched_searches_equal_single_calls(name, chunk_size, monkeypatch):
     about 1e-7. A search written to the wrong slot would be off by the distance between two
     axes, of order 1.)"""
     if chunk_size is not None:
-        monkeypatch.setattr(smoothing, "SEARCH_CHUNK_SIZE", chunk_size)
+        monkeypatch.setattr(smoothing, "SEARCH_CHUNK_SIZE", {2: chunk_size, 3: chunk_size})
     shapes = pool(name, np.float64)
     pairs = random_pairs(shapes, shapes, 37, np.random.default_rng(72), np.float64)
     needed = np.random.default_rng(73).random(37) < 0.5
@@ -471,12 +471,13 @@ def test_batched_searches_equal_single_calls(name, chunk_size, monkeypatch):
     assert np.all(np.isfinite(batched[1][needed])) and np.all(np.isfinite(batched[1][:, 0]))
 
 
-def test_a_large_batch_searches_in_chunks_of_at_most_the_chunk_size(monkeypatch):
-    """On the CPU, 4,096 box pairs (8,192 searches, an eighth 1,024) take their smooth
-    distance's searches in chunks of `SEARCH_CHUNK_SIZE` (512): the chunk loop slices that many
-    rows of the wanted list at a time."""
+@pytest.mark.parametrize(("name", "chunk"), [("poly8", 2048), ("box", 512)])
+def test_a_large_batch_searches_in_chunks_of_at_most_the_chunk_size(name, chunk, monkeypatch):
+    """On the CPU, 4,096 pairs (8,192 searches) take their smooth distance's searches in chunks
+    of `SEARCH_CHUNK_SIZE`: 2,048 in 2D, 512 in 3D (not 1/8 of the batch's, 1,024): the chunk
+    loop slices that many rows of the wanted list at a time."""
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
-    shapes = pool("box", np.float32)
+    shapes = pool(name, np.float32)
     pairs = random_pairs(shapes, shapes, 4096, np.random.default_rng(76), np.float32)
 
     def value(a, params_a, b, params_b):
@@ -487,12 +488,12 @@ def test_a_large_batch_searches_in_chunks_of_at_most_the_chunk_size(monkeypatch)
         for eqn in jaxpr.eqns:
             if eqn.primitive.name == "dynamic_slice":
                 yield eqn.params["slice_sizes"]
-            for inner in jax.extend.core.jaxprs_in_params(eqn.params):
+            for inner in inner_jaxprs(eqn):
                 yield from slice_sizes(inner)
 
     closed = jax.make_jaxpr(jax.vmap(value))(*pairs.inputs())
-    assert smoothing.SEARCH_CHUNK_SIZE == 512
-    assert [size for size in slice_sizes(closed.jaxpr) if size[0] > 1] == [(512,)]
+    assert smoothing.SEARCH_CHUNK_SIZE[shapes.dim] == chunk
+    assert [size for size in slice_sizes(closed.jaxpr) if size[0] > 1] == [(chunk,)]
 
 
 def test_off_the_cpu_both_3d_searches_run_and_give_the_same_answer(monkeypatch):
