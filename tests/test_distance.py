@@ -487,3 +487,32 @@ def test_a_vmap_of_1e5_hull_pairs_value_and_gradient_fits_in_2_gib():
     total = (memory.argument_size_in_bytes + memory.output_size_in_bytes
              + memory.temp_size_in_bytes)
     assert total <= 2 * 2**30, total / 2**30
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["poly8", "box", "hull8"])
+def test_minus_signed_distance_has_the_penetration_depth_gradient_where_overlapping(name):
+    """The README's advice: where the shapes overlap, -signed_distance is the penetration depth
+    and its pose gradient (the envelope theorem at the witness points) equals the gradient of
+    `penetration(...).depth` (differentiated through the SAT's search), at a fraction of the
+    cost. On 64 random pairs, float64, those that overlap by more than 1e-3 (at least a
+    quarter): values and gradients agree to 1e-9."""
+    shapes = pool(name, np.float64)
+    pairs = random_pairs(shapes, shapes, 64, np.random.default_rng(81), np.float64)
+
+    def both(a, params_a, b, params_b):
+        def depth(pa, pb):
+            return jaxsat.penetration(a, make_pose(pa), b, make_pose(pb)).depth
+
+        def minus_distance(pa, pb):
+            return -jaxsat.signed_distance(a, make_pose(pa), b, make_pose(pb))
+
+        return (jax.value_and_grad(depth, argnums=(0, 1))(params_a, params_b),
+                jax.value_and_grad(minus_distance, argnums=(0, 1))(params_a, params_b))
+
+    by_sat, by_distance = jax.jit(jax.vmap(both))(*pairs.inputs())
+    overlapping = np.asarray(by_sat[0]) > 1e-3
+    assert np.sum(overlapping) >= 16
+    for got, expected in zip(jax.tree.leaves(by_distance), jax.tree.leaves(by_sat), strict=True):
+        np.testing.assert_allclose(np.asarray(got)[overlapping], np.asarray(expected)[overlapping],
+                                   rtol=1e-9, atol=1e-9)
