@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = [
     "chord",
@@ -80,6 +81,7 @@ __all__ = [
     "safe_divide",
     "safe_normalize",
     "safe_sqrt",
+    "store_cotangent",
     "segment_closest_parameters",
     "support_index",
     "take_vec",
@@ -519,3 +521,30 @@ def _stored_float_jvp(primals, tangents):
     # pass of its own (select_and_gather_add) per stored leaf in every linearised program;
     # the stored value's derivative needs none.
     return _stored_float(primals[0]), tangents[0]
+
+
+def store_cotangent(tree):
+    """The same values; in reverse mode each leaf's cotangent is stored (summed in a window
+    pass of its own, as `materialize` stores values: rule 5 for the gradient), so that
+    everything the gradient builds from it reads the stored cotangent instead of recomputing
+    it. Without it XLA fused the box kernel's whole cotangent graph (about 600 operations)
+    into the pass that writes each pose's 3 x 3 rotation gradient, evaluated once per entry:
+    the gradient of box `penetration` took 101 ms on 1e4 pairs, 1.6 ms with the rotation's
+    entries, the axis and b's axis stored (`_sat._parallelepiped_search`; 2-core AMD EPYC).
+    Forward mode is unchanged: the tangent passes through a window sum of one entry."""
+    return jax.tree.map(_cotangent_stored, tree)
+
+
+@jax.custom_jvp
+def _cotangent_stored(leaf):
+    return leaf
+
+
+@_cotangent_stored.defjvp
+def _cotangent_stored_jvp(primals, tangents):
+    tangent = tangents[0]
+    ndim = jnp.ndim(tangent)
+    stored = jax.lax.reduce_window(tangent[None], np.zeros((), tangent.dtype), jax.lax.add,
+                                   (2,) + (1,) * ndim, (1,) * (ndim + 1),
+                                   ((1, 0),) + ((0, 0),) * ndim)[0]
+    return primals[0], stored

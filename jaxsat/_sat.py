@@ -37,6 +37,7 @@ from jaxsat._kernels import (
     project,
     rotate,
     safe_normalize,
+    store_cotangent,
     vadd,
     vcross,
     vdot,
@@ -440,15 +441,18 @@ def _parallelepiped_search(frame: PairFrame) -> SatAxis:
                            shape.edge_directions[choice % 3]))
               for shape, choice in ((frame.a, of_a), (frame.b, of_b))]
     picked_a = picked[0]
-    rows = as_vecs(frame.rotation)
+    # The gradient reads the stored cotangents of the rotation's entries and of both axes
+    # (`_kernels.store_cotangent`).
+    rows = store_cotangent(as_vecs(frame.rotation))
     turned_b = vrotate(rows, picked[1])
     axis = vselect(index < 3, picked_a, vselect(index < 6, turned_b, vcross(picked_a, turned_b)))
     # The winner is never degenerate: a face normal (unit) beats every invalid edge pair.
     squared = vdot(axis, axis)
-    unit = materialize(vscale(jax.lax.rsqrt(where(squared > 0, squared, 1.0)), axis))
+    unit = store_cotangent(materialize(vscale(jax.lax.rsqrt(where(squared > 0, squared, 1.0)),
+                                              axis)))
     # b projected in its own frame on the axis turned back (R^T u), plus u . t: the same
     # values as projecting b's vertices moved into a's frame, without storing them.
-    unit_in_b = vrotate_back(rows, unit)
+    unit_in_b = store_cotangent(vrotate_back(rows, unit))
     shift = vdot(unit, as_vec(frame.translation))
     b_min, b_max = extremes(list(unit_in_b), frame.b.vertices)
     poison = inline_non_finite_poison(frame.a.vertices, frame.b.vertices,
