@@ -429,12 +429,12 @@ def _searches(frame: PairFrame, tau, starts, wanted):
 
 SEARCH_CHUNK_SIZE = {2: 2048, 3: 512}
 """The most searches in one chunk, by dimension. Chunks keep a batch's search data in the
-cache: 2D polygons' smooth value and gradient took 0.67x the time at 1e5 pairs in chunks of
-2,048 (0.89x at 1e4) against one vmap over all searches. Smaller chunks cost more passes
-(about 10 us a chunk in 2D, 80 us in 3D); in 3D, where only the wanted searches run, they
-also waste less on the last chunk, which those fill only in part: box pairs, against chunks
-of 1/8 of the batch alone, 0.98x at 4,480 pairs, 0.89x at 1e4, 0.95x at 1e5; 20-vertex
-hulls 0.95x at 1e4 (a 2-core AMD EPYC)."""
+cache: 2D polygons' smooth value and gradient took 0.67-0.79x the time at 1e5 pairs in
+chunks of 2,048 (0.85-0.89x at 1e4; 0.99x at 1e3) against one vmap over all searches.
+Smaller chunks cost more passes (about 10 us a chunk in 2D, 80 us in 3D); in 3D, where only
+the wanted searches run, they also waste less on the last chunk, which those fill only in
+part: box pairs, against chunks of 1/8 of the batch alone, 0.98x at 4,480 pairs, 0.89x at
+1e4, 0.95x at 1e5; 20-vertex hulls 0.95x at 1e4 (a 2-core AMD EPYC)."""
 
 SEARCH_CHUNKS = 8
 """In 3D, at least this many chunks: a small batch's wanted searches then fill all but the
