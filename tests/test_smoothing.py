@@ -432,9 +432,9 @@ def test_the_newton_steps_reach_the_maximiser_of_a_long_search(name, monkeypatch
     assert np.max(gaps) < 2e-6, (np.max(gaps), int(np.sum(gaps >= 2e-6)))
 
 
-@pytest.mark.parametrize("chunk_size", [None, pytest.param(4, marks=pytest.mark.slow)],
-                         ids=["eighth", "capped"])
-@pytest.mark.parametrize("name", ["box", "hull8"])
+@pytest.mark.parametrize(("name", "chunk_size"), [
+    ("box", None), ("hull8", None), pytest.param("box", 4, marks=pytest.mark.slow)],
+    ids=["box-eighth", "hull8-eighth", "box-capped"])
 def test_batched_searches_equal_single_calls(name, chunk_size, monkeypatch):
     """In 3D, `vmap` of the two searches runs only the wanted ones, gathered in chunks of 1/8
     of the batch's searches or `SEARCH_CHUNK_SIZE`, the smaller: on 37 pairs (74 searches:
