@@ -436,9 +436,10 @@ the wanted searches run, they also waste less on the last chunk, which those fil
 part: box pairs, against chunks of 1/8 of the batch alone, 0.98x at 4,480 pairs, 0.89x at
 1e4, 0.95x at 1e5; 20-vertex hulls 0.95x at 1e4 (a 2-core AMD EPYC)."""
 
-SEARCH_CHUNKS = 8
-"""In 3D, at least this many chunks: a small batch's wanted searches then fill all but the
-last, and the others are skipped."""
+SEARCH_CHUNKS = {2: 1, 3: 8}
+"""The fewest chunks, by dimension. In 3D, where only the wanted searches run, at least 8: a
+small batch's wanted searches then fill all but the last, and the others are skipped. In 2D
+every search is wanted, and one chunk serves a batch of up to `SEARCH_CHUNK_SIZE`."""
 
 
 @_searches.def_vmap
@@ -454,7 +455,7 @@ def _searches_vmap(axis_size, in_batched, frame, tau, starts, wanted):
     per_pair = starts.shape[1]
     slots = axis_size * per_pair
     starts, wanted = starts.reshape(slots, -1), wanted.reshape(slots)
-    chunks = max(-(-slots // SEARCH_CHUNK_SIZE[frame.dim]), SEARCH_CHUNKS if frame.dim == 3 else 1)
+    chunks = max(-(-slots // SEARCH_CHUNK_SIZE[frame.dim]), SEARCH_CHUNKS[frame.dim])
     chunk = max(1, -(-slots // chunks))
     # The wanted slots, then `slots` (out of range: dropped when written). Each wanted slot
     # goes to its rank among them (`jnp.nonzero` would trace a nested `jnp.where`).
@@ -498,13 +499,12 @@ def _maximiser(frame: PairFrame, tau):
     apart = jnp.clip(_SECOND_START_ANGLE * tau / extent, 1e-3, 0.5)
     exact = exact_distance(frozen)
     starts = jnp.stack([exact.axis, sat_runner_up(frozen, exact.axis, apart)])
-    if frozen.dim == 2 and jax.default_backend() == "cpu":
+    if frozen.dim == 2:
         # In 2D both searches always run: the first search alone took 1.08x as long as both
         # together on 1e5 pairs (XLA's passes over a batch of 2N axes cost about what they
-        # cost over N), so skipping saves nothing. On the CPU they run in chunks
-        # (`_searches_vmap`), which keep their data in the cache.
-        axes, losses, slopes = _searches(frozen, tau, starts, jnp.ones((2,), bool))
-    elif frozen.dim == 3 and jax.default_backend() == "cpu":
+        # cost over N), so skipping saves nothing.
+        wanted = jnp.ones((2,), bool)
+    else:
         # Where the exact distance exceeds c tau (c = log(n_a n_b), `smoothing_error_bound`),
         # soft_gap > 0 at the first start already, and a positive maximum is the only one as
         # high: where soft_gap > 0, gap > 0 too and soft_gap rises along every ray (each
@@ -515,6 +515,9 @@ def _maximiser(frame: PairFrame, tau):
         bound = smoothing_error_bound(frozen.a, frozen.b) * tau
         needed = exact.distance <= bound + 64 * jnp.finfo(frozen.dtype).eps * extent
         wanted = jnp.stack([jnp.ones_like(needed), needed])
+    if jax.default_backend() == "cpu":
+        # On the CPU the searches run in chunks (`_searches_vmap`), which keep their data in
+        # the cache, and in 3D only the wanted ones run.
         axes, losses, slopes = _searches(frozen, tau, starts, wanted)
     else:
         # Off the CPU both searches run as one vmap over the two starts: on an H100 the
