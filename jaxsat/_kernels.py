@@ -155,7 +155,8 @@ def propagate_non_finite(outputs, inputs):
     overflow it. Its derivative with respect to each entry is defined as p: 0, or NaN.
     Written entry by entry (rule 2: a reduction would be a pass of its own over the inputs)
     and stored once (rule 5), it costs the SAT about 5-30% on 2D polygons and boxes (1e5
-    pairs, interleaved runs), against 30-130% as a reduction per input. A kernel that reads
+    pairs, interleaved runs), against 30-130% as a reduction per input; only a leaf of more
+    entries than `_ENTRY_BY_ENTRY` (a large hull's vertices) takes a reduction. A kernel that reads
     every input entry in one of its own passes can fold the guard into it instead
     (`inline_non_finite_poison`)."""
     floats = [leaf for leaf in map(jnp.asarray, jax.tree.leaves(inputs))
@@ -185,11 +186,23 @@ def _non_finite_poison(*floats):
     return _nan_if_non_finite(*[leaf.astype(dtype) for leaf in floats])
 
 
+_ENTRY_BY_ENTRY = 32
+"""The most entries of a leaf that `_zero_times_every_entry` takes one by one; a larger leaf
+(a hull's vertices) takes a reduction."""
+
+
 def _zero_times_every_entry(leaves) -> jax.Array:
-    """sum(0 * x) over every entry of the leaves, entry by entry (rule 2): 0, or NaN once one
-    is NaN or inf (0 * inf is NaN), and no finite input can overflow it."""
-    entries = [entry for leaf in leaves for entry in jnp.unstack(leaf.reshape(-1))]
-    return sum(entry * jnp.zeros((), entry.dtype) for entry in entries)
+    """sum(0 * x) over every entry of the leaves: 0, or NaN once one is NaN or inf (0 * inf
+    is NaN), and no finite input can overflow it. Entry by entry (rule 2) for a leaf of up
+    to `_ENTRY_BY_ENTRY` entries; a larger one by a reduction, since each entry's slice is
+    an operation to compile: pairs of 20-vertex hulls (60 entries a shape) compiled their
+    exact value and gradient 0.15-0.25 s faster and ran it 0.95x the time (1e4 pairs, 2-core
+    AMD EPYC)."""
+    zero = jnp.zeros((), leaves[0].dtype)
+    small = [entry for leaf in leaves if leaf.size <= _ENTRY_BY_ENTRY
+             for entry in jnp.unstack(leaf.reshape(-1))]
+    large = [jnp.sum(leaf * zero) for leaf in leaves if leaf.size > _ENTRY_BY_ENTRY]
+    return sum(entry * zero for entry in small) + sum(large)
 
 
 @jax.custom_jvp

@@ -50,6 +50,36 @@ def test_a_nan_quaternion_gives_a_nan_distance_and_gradient():
     assert np.all(np.isfinite(gradient))
 
 
+@pytest.mark.slow  # a hull distance's gradient compiled: the fast subset stays under 2 minutes
+def test_a_non_finite_vertex_of_a_large_hull_gives_nan_values_and_vertex_gradients():
+    """A 20-vertex hull's vertices (60 entries, more than the guard takes one by one: a
+    reduction, `_kernels._ENTRY_BY_ENTRY`): one NaN or inf coordinate, in any of its 60
+    places, makes the signed distance and every entry of its vertex gradient NaN; the finite
+    hull gives a finite value and gradient."""
+    from jaxsat._kernels import _ENTRY_BY_ENTRY
+
+    rng = np.random.default_rng(5)
+    points = rng.normal(size=(200, 3))
+    points = 0.5 * points / np.linalg.norm(points, axis=1, keepdims=True)
+    hull = jaxsat.polyhedron(points[:20])
+    assert hull.vertices.size > _ENTRY_BY_ENTRY
+    pose_a, pose_b = jaxsat.pose3(np.zeros(3), UPRIGHT), jaxsat.pose3(
+        np.array([1.2, 0.1, 0.0]), UPRIGHT)
+
+    def distance(vertices):
+        return jaxsat.signed_distance(dataclasses.replace(hull, vertices=vertices), pose_a,
+                                      hull, pose_b)
+
+    value_and_grad = jax.jit(jax.value_and_grad(distance), compiler_options=FAST_COMPILE)
+    value, gradient = value_and_grad(hull.vertices)
+    assert np.isfinite(value) and np.all(np.isfinite(gradient))
+    for spot, bad in ((0, np.nan), (31, np.inf), (hull.vertices.size - 1, -np.inf)):
+        vertices = np.array(hull.vertices).reshape(-1)
+        vertices[spot] = bad
+        value, gradient = value_and_grad(vertices.reshape(hull.vertices.shape))
+        assert np.isnan(value) and np.all(np.isnan(gradient)), (spot, value)
+
+
 def _square_pair():
     square = jaxsat.box([0.5, 0.5])
     return square, jaxsat.pose2(0.0, 0.0, 0.0), square, jaxsat.pose2(0.7, 0.2, 0.3)
