@@ -202,7 +202,7 @@ def _zero_times_every_entry(leaves) -> jax.Array:
     small = [entry for leaf in leaves if leaf.size <= _ENTRY_BY_ENTRY
              for entry in jnp.unstack(leaf.reshape(-1))]
     large = [jnp.sum(leaf * zero) for leaf in leaves if leaf.size > _ENTRY_BY_ENTRY]
-    return sum(entry * zero for entry in small) + sum(large)
+    return sum([entry * zero for entry in small] + large)
 
 
 @jax.custom_jvp
