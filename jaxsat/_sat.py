@@ -500,18 +500,19 @@ def sat_search(frame: PairFrame, prune: bool = True, box_kernel: bool = False) -
     return SatAxis(depth, axis, feature)
 
 
-def sat_runner_up(frame: PairFrame, first, min_angle) -> jax.Array:
-    """(D,) unit axis (a's frame) of the best candidate more than `min_angle` radians (may be
-    traced) from the unit axis `first` (a penetration direction found by another search):
-    where two penetration directions tie, the other one. Projected candidates near `first`
-    are masked (padding repeats a face normal, and parallel faces of a and b give one
-    direction); a Gauss-map group offers its best pair unless that is near `first`. With no
-    such candidate, `first`.
+def sat_runner_up(frame: PairFrame, first, min_angle) -> tuple[jax.Array, jax.Array]:
+    """((D,) unit axis (a's frame), () its gap) of the best candidate more than `min_angle`
+    radians (may be traced) from the unit axis `first` (a penetration direction found by
+    another search): where two penetration directions tie, the other one. The gap is
+    min_b u.b - max_a u.a along the axis (minus its depth). Projected candidates near
+    `first` are masked (padding repeats a face normal, and parallel faces of a and b give
+    one direction); a Gauss-map group offers its best pair unless that is near `first`.
+    With no such candidate, (`first`, -inf).
 
     Measured from `first`, not from this search's own winner: where the directions tie
     exactly (identical shapes at one pose tie u and -u), the two searches may break the tie
     differently, and the winner's rival would then lie next to `first`."""
     found = candidates(frame)
     best_depth, best_axis, _ = _smallest(_winners(found, first, jnp.cos(min_angle)))
-    return where(jnp.isfinite(best_depth), best_axis, first)
+    return where(jnp.isfinite(best_depth), best_axis, first), -best_depth
 

@@ -431,15 +431,14 @@ SEARCH_CHUNK_SIZE = {2: 2048, 3: 512}
 """The most searches in one chunk, by dimension. Chunks keep a batch's search data in the
 cache: 2D polygons' smooth value and gradient took 0.67-0.79x the time at 1e5 pairs in
 chunks of 2,048 (0.85-0.89x at 1e4; 0.99x at 1e3) against one vmap over all searches.
-Smaller chunks cost more passes (about 10 us a chunk in 2D, 80 us in 3D); in 3D, where only
-the wanted searches run, they also waste less on the last chunk, which those fill only in
-part: box pairs, against chunks of 1/8 of the batch alone, 0.98x at 4,480 pairs, 0.89x at
+Smaller chunks cost more passes (about 10 us a chunk in 2D, 80 us in 3D); since only the
+wanted searches run, they also waste less on the last chunk, which those fill only in part:
+box pairs, against chunks of 1/8 of the batch alone, 0.98x at 4,480 pairs, 0.89x at
 1e4, 0.95x at 1e5; 20-vertex hulls 0.95x at 1e4 (a 2-core AMD EPYC)."""
 
-SEARCH_CHUNKS = {2: 1, 3: 8}
-"""The fewest chunks, by dimension. In 3D, where only the wanted searches run, at least 8: a
-small batch's wanted searches then fill all but the last, and the others are skipped. In 2D
-every search is wanted, and one chunk serves a batch of up to `SEARCH_CHUNK_SIZE`."""
+SEARCH_CHUNKS = 8
+"""The fewest chunks: a small batch's wanted searches then fill all but the last, and the
+others are skipped."""
 
 
 @_searches.def_vmap
@@ -455,7 +454,7 @@ def _searches_vmap(axis_size, in_batched, frame, tau, starts, wanted):
     per_pair = starts.shape[1]
     slots = axis_size * per_pair
     starts, wanted = starts.reshape(slots, -1), wanted.reshape(slots)
-    chunks = max(-(-slots // SEARCH_CHUNK_SIZE[frame.dim]), SEARCH_CHUNKS[frame.dim])
+    chunks = max(-(-slots // SEARCH_CHUNK_SIZE[frame.dim]), SEARCH_CHUNKS)
     chunk = max(1, -(-slots // chunks))
     # The wanted slots, then `slots` (out of range: dropped when written). Each wanted slot
     # goes to its rank among them (`jnp.nonzero` would trace a nested `jnp.where`).
@@ -489,35 +488,43 @@ def _maximiser(frame: PairFrame, tau):
     second is the best SAT candidate more than a few tau / extent radians from the first
     (nearer ones share its basin): where two penetration directions tie, the local maximum
     near each is found, and taking the larger keeps the value continuous when they swap.
-    Between values that tie within rounding, the axis where soft_gap is flatter wins. In 3D
-    the second search runs only where the exact distance is at most c tau (overlapping or
-    nearly touching shapes: see below), and under `vmap` on the CPU the others skip it
-    (`_searches_vmap`): box pairs' value and gradient 0.63x the time at 1e5 pairs (0.95x at
-    1e4), 20-vertex hulls 0.92x, on a 2-core AMD EPYC."""
+    Between values that tie within rounding, the axis where soft_gap is flatter wins. The
+    second search runs only where it could end higher than the first (see below), and under
+    `vmap` on the CPU the others skip it (`_searches_vmap`). Skipping it where the exact
+    distance exceeds c tau: box pairs' value and gradient 0.63x the time at 1e5 pairs (0.95x
+    at 1e4), 20-vertex hulls 0.92x; where the runner-up's gap is also too low, 0.89-0.92x
+    more for boxes (1e4, 1e5), 2D polygons 0.87x at 1e4 and 0.78x at 1e5 (which searched
+    twice everywhere), on a 2-core AMD EPYC."""
     frozen, tau = jax.lax.stop_gradient((frame, tau))
     extent = jnp.max(jnp.abs(frozen.a.vertices)) + jnp.max(jnp.abs(frozen.b_vertices))
     apart = jnp.clip(_SECOND_START_ANGLE * tau / extent, 1e-3, 0.5)
     exact = exact_distance(frozen)
-    starts = jnp.stack([exact.axis, sat_runner_up(frozen, exact.axis, apart)])
-    if frozen.dim == 2:
-        # In 2D both searches always run: the first search alone took 1.08x as long as both
-        # together on 1e5 pairs (XLA's passes over a batch of 2N axes cost about what they
-        # cost over N), so skipping saves nothing.
-        wanted = jnp.ones((2,), bool)
-    else:
-        # Where the exact distance exceeds c tau (c = log(n_a n_b), `smoothing_error_bound`),
-        # soft_gap > 0 at the first start already, and a positive maximum is the only one as
-        # high: where soft_gap > 0, gap > 0 too and soft_gap rises along every ray (each
-        # u.m > 0), so for two axes with soft_gap >= t > 0, concavity holds soft_gap >= t on
-        # the segment between them, and the rise along rays on the arc above it. A second
-        # maximum at least as high would be joined to the first by an arc that never dips
-        # below it. There the second search is skipped.
-        bound = smoothing_error_bound(frozen.a, frozen.b) * tau
-        needed = exact.distance <= bound + 64 * jnp.finfo(frozen.dtype).eps * extent
-        wanted = jnp.stack([jnp.ones_like(needed), needed])
+    runner_up, runner_up_gap = sat_runner_up(frozen, exact.axis, apart)
+    starts = jnp.stack([exact.axis, runner_up])
+    # The second search is needed only where it could end higher than the first, which ends
+    # at least as high as soft_gap(exact axis) >= sd - c tau (c = log(n_a n_b),
+    # `smoothing_error_bound`). Two cases where it cannot:
+    # * The exact distance exceeds c tau: then soft_gap > 0 at the first start already, and
+    #   a positive maximum is the only one as high: where soft_gap > 0, gap > 0 too and
+    #   soft_gap rises along every ray (each u.m > 0), so for two axes with soft_gap >= t > 0,
+    #   concavity holds soft_gap >= t on the segment between them, and the rise along rays on
+    #   the arc above it. A second maximum at least as high would be joined to the first by
+    #   an arc that never dips below it.
+    # * The runner-up's gap is below sd - c tau: the maxima of gap other than the first
+    #   (below 0) are SAT candidates (the facet normals of the Minkowski difference), none
+    #   outside the first's neighbourhood above the runner-up, and soft_gap <= gap, so a
+    #   maximum of soft_gap outside the first's basin ends no higher than the runner-up's gap.
+    #   This skips most second searches of overlapping pairs (random 2D polygon and box
+    #   pairs: 29% of pairs search twice instead of 56%; 20-vertex hulls, whose candidates
+    #   crowd, 50% instead of 52%).
+    bound = smoothing_error_bound(frozen.a, frozen.b) * tau
+    margin = 64 * jnp.finfo(frozen.dtype).eps * extent
+    needed = (exact.distance <= bound + margin) & (
+        runner_up_gap >= exact.distance - bound - margin)
+    wanted = jnp.stack([jnp.ones_like(needed), needed])
     if jax.default_backend() == "cpu":
         # On the CPU the searches run in chunks (`_searches_vmap`), which keep their data in
-        # the cache, and in 3D only the wanted ones run.
+        # the cache, and only the wanted ones run.
         axes, losses, slopes = _searches(frozen, tau, starts, wanted)
     else:
         # Off the CPU both searches run as one vmap over the two starts: on an H100 the
