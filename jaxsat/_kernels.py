@@ -86,6 +86,7 @@ __all__ = [
     "support_index",
     "take_vec",
     "transposed_product",
+    "SELECT_CHAIN_POINTS",
     "Vec",
     "as_vec",
     "as_vecs",
