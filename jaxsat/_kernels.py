@@ -17,9 +17,10 @@ and "Distance"); breaking one typically costs 2x or more.
 2. **Few reductions over long axes.** A reduce op is a separate pass that its consumers do
    not fuse with. Over a handful of entries, a Python loop of selects (`extremes`,
    `support_index`) fuses; a 2-D array of depths is reduced row by row and then once more.
-   Outside loops, over more than `SELECT_CHAIN_POINTS` points (a 20-vertex hull), a value
-   read once a pair (an extent, a witness point, the non-finite guard) takes a reduction or
-   a gather instead: the chains were kernels of hundreds of lines, compiled in every query.
+   Outside loops, a value read once a pair over many entries takes a reduction or a gather
+   instead (an extent or a witness point over more than `SELECT_CHAIN_POINTS` points, the
+   non-finite guard over a leaf of more than `_ENTRY_BY_ENTRY` entries: a 20-vertex hull):
+   the chains were kernels of hundreds of lines, compiled in every query.
 3. **Select, not maximum, at ties.** `jnp.maximum` splits a gradient between tied entries,
    and under `jit` XLA may recompute the tied values with different roundings in the
    backward pass, so that the shares no longer sum to 1. A select (`where(p > best, ...)`)
