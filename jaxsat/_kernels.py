@@ -68,6 +68,7 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = [
+    "SELECT_CHAIN_POINTS",
     "chord",
     "columns",
     "cross",
@@ -85,12 +86,11 @@ __all__ = [
     "safe_divide",
     "safe_normalize",
     "safe_sqrt",
-    "store_cotangent",
     "segment_closest_parameters",
+    "store_cotangent",
     "support_index",
     "take_vec",
     "transposed_product",
-    "SELECT_CHAIN_POINTS",
     "Vec",
     "as_vec",
     "as_vecs",
