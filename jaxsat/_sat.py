@@ -67,12 +67,16 @@ class ProjectedAxes(NamedTuple):
     """(C,) float: the depth s(u) along each candidate's better sense; inf for no axis."""
     groups: tuple[tuple[jax.Array, ...], ...]
     """The candidates' unnormalised axes, in order, as groups of D arrays (C_g,), component
-    by component: a's face normals and b's, or with edge pairs one group of all. The two
-    face groups are not concatenated: a concatenation has two readers, the depths and the
-    winner's pick, so XLA stored it (2D polygons: 13 MB of temporaries at 1e5 pairs, which
-    lifted the exact distance's over glibc's 32 MB mmap threshold, to page faults on every
-    call; apart, exact value and gradient 0.56x the time, penetration 0.79-0.85x, on a
-    2-core AMD EPYC)."""
+    by component: a's face normals and b's (in b's frame, see `turns`), or with edge pairs
+    one group of all, in a's frame. The two face groups are not concatenated: a
+    concatenation has two readers, the depths and the winner's pick, so XLA stored it (2D
+    polygons: 13 MB of temporaries at 1e5 pairs, which lifted the exact distance's over
+    glibc's 32 MB mmap threshold, to page faults on every call; apart, exact value and
+    gradient 0.56x the time, penetration 0.79-0.85x, on a 2-core AMD EPYC)."""
+    turns: tuple[jax.Array | None, ...]
+    """Per group, None or the rotation (D, D) that takes its axes into a's frame: b's face
+    normals are kept in b's frame and a picked one is turned, so that the turned normals have
+    one reader, the depths, and XLA does not store them (2D polygons at 1e5 pairs: 6.4 MB)."""
     inverse_norm: jax.Array
     """(C,) float: 1 / |axis| (1 where the axis is degenerate)."""
     signs: jax.Array
@@ -85,10 +89,12 @@ class ProjectedAxes(NamedTuple):
     def axis(self, index) -> jax.Array:
         """(D,) the signed unit axis of candidate `index`."""
         picked, start = None, 0
-        for group in self.groups:
+        for group, turn in zip(self.groups, self.turns, strict=True):
             size = group[0].shape[0]
             inside = jnp.clip(index - start, 0, size - 1)
             entry = [component[inside] for component in group]
+            if turn is not None:
+                entry = list(vrotate(as_vecs(turn), tuple(entry)))
             picked = entry if picked is None else [where(index >= start, e, p)
                                                    for e, p in zip(entry, picked, strict=True)]
             start += size
@@ -96,8 +102,12 @@ class ProjectedAxes(NamedTuple):
 
     def cosines_to(self, unit) -> jax.Array:
         """(C,) cosines between each candidate's signed unit axis and `unit`."""
-        return (jnp.concatenate([sum(component * unit[k] for k, component in enumerate(group))
-                                 for group in self.groups]) * self.inverse_norm * self.signs)
+        def along(group, turn):
+            direction = unit if turn is None else vrotate_back(as_vecs(turn), as_vec(unit))
+            return sum(component * direction[k] for k, component in enumerate(group))
+
+        return (jnp.concatenate([along(group, turn) for group, turn in zip(
+            self.groups, self.turns, strict=True)]) * self.inverse_norm * self.signs)
 
     def feature(self, index) -> jax.Array:
         """() int32: which `SatAxis.feature` candidate `index` is."""
@@ -223,6 +233,7 @@ def _projected_axes(a: Polytope, b: Polytope, b_vertices_in_a, rotation,
     unique edge directions (cheapest for boxes: 3 x 3 axes), measured by projection."""
     normals_b = rotate(rotation, b.face_normals)
     groups = [tuple(columns(a.face_normals)), tuple(columns(normals_b))]
+    kept, turns = [groups[0], tuple(columns(b.face_normals))], [None, rotation]
     squares = [jnp.ones_like(group[0]) for group in groups]  # unit face normals
     if with_edges:
         # Each component its own (E_a E_b,) array: stacked as (E_a, E_b, 3) and sliced, they
@@ -236,6 +247,7 @@ def _projected_axes(a: Polytope, b: Polytope, b_vertices_in_a, rotation,
                         for k in range(3))]
         squares = [jnp.concatenate([*squares, crosses[0] ** 2 + crosses[1] ** 2
                                     + crosses[2] ** 2])]
+        kept, turns = groups, [None]
     depths, signs, inverse_norms = [], [], []
     for axes, squared in zip(groups, squares, strict=True):
         eps = jnp.finfo(squared.dtype).eps
@@ -248,7 +260,8 @@ def _projected_axes(a: Polytope, b: Polytope, b_vertices_in_a, rotation,
         signs.append(group_signs)
         inverse_norms.append(inverse_norm)
     num_faces_a = a.face_normals.shape[0]
-    return ProjectedAxes(jnp.concatenate(depths), tuple(groups), jnp.concatenate(inverse_norms),
+    return ProjectedAxes(jnp.concatenate(depths), tuple(kept), tuple(turns),
+                         jnp.concatenate(inverse_norms),
                          jnp.concatenate(signs), num_faces_a,
                          num_faces_a + b.face_normals.shape[0])
 
