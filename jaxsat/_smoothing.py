@@ -42,7 +42,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxsat import _kernels as kernels
-from jaxsat._closest import exact_distance
+from jaxsat._closest import exact_distance, support_gap
 from jaxsat._halfspace import HalfSpace, check_kinds
 from jaxsat._kernels import Vec, dot, materialize, safe_divide, where
 from jaxsat._pair import PairFrame
@@ -53,9 +53,12 @@ __all__ = ["NEWTON_STEPS", "smooth_signed_distance", "smoothing_error_bound"]
 
 NEWTON_STEPS = 10
 """Trust-region Newton steps from each start. At tau = 0.005 (1% of the shapes' size), 10
-steps bring 2e4 random 2D pairs, 1e4 box pairs and 5e3 20-vertex hull pairs within 2e-8 rad
-of the maximiser 40 steps find in float64 (all within 1e-12 but one box pair), and within
-7e-7 rad in float32; 8 steps leave up to 5e-4 rad."""
+steps from both starts brought 2e4 random 2D pairs, 1e4 box pairs and 5e3 20-vertex hull
+pairs within 2e-8 rad of the maximiser 40 steps find in float64 (all within 1e-12 but one box
+pair), and within 7e-7 rad in float32; 8 steps leave up to 5e-4 rad. From the exact
+maximiser alone, 0.2% of 20-vertex hull pairs and 0.03% of 2D polygon pairs have not
+flattened out after 10 (one hull pair's maximum lay 29 degrees away); those go on for as many
+again (`_second_start`)."""
 
 UNROLLED_VERTICES = 10
 """Shapes of at most this many vertices (padding included) take a step's moments, and the
@@ -417,14 +420,30 @@ def soft_gap(frame: PairFrame, axis, tau):
 
 
 @jax.custom_batching.custom_vmap
-def _searches(frame: PairFrame, tau, starts, wanted):
-    """`_search` from each of the (K, D) `starts` where `wanted` (K,), else (start, inf, inf):
-    a result that never wins the comparison in `_maximiser`. Under `vmap` only the wanted
-    searches run (`_searches_vmap`)."""
-    axes, losses, slopes = jax.vmap(_search, in_axes=(None, None, 0))(frame, tau, starts)
-    inf = jnp.asarray(jnp.inf, losses.dtype)
-    return (where(wanted[:, None], axes, starts), where(wanted, losses, inf),
-            where(wanted, slopes, inf))
+def _searches(frame: PairFrame, tau, starts, needed, rival, margin, flat):
+    """`_search` from the first of the (2, D) `starts`, then a second search where
+    `_second_start` wants one (from the second start, or on from the first's end), else
+    (the second start, inf, inf): a result that never wins the comparison in `_maximiser`.
+    Under `vmap` only the wanted second searches run (`_searches_vmap`)."""
+    first = _search(frame, tau, starts[0])
+    wanted, start = _second_start(needed, rival, margin, flat, starts[1], first)
+    second = _search(frame, tau, start)
+    inf = jnp.asarray(jnp.inf, first[1].dtype)
+    second = (where(wanted, second[0], starts[1]), where(wanted, second[1], inf),
+              where(wanted, second[2], inf))
+    return tuple(jnp.stack(parts) for parts in zip(first, second, strict=True))
+
+
+def _second_start(needed, rival, margin, flat, runner_up, first):
+    """(whether a second search runs, its start) after the first search (`_search`'s
+    (axis, loss, slope)): from the runner-up where it could end higher than the first
+    (`needed`, and `rival`, a bound on the maxima outside the first's basin, reaches the
+    first's end; see `_maximiser`); else on from the first's end where that is not yet flat
+    (squared gradient above `flat`: 0.2% of 20-vertex hull pairs, 0.03% of 2D polygon pairs,
+    no box pairs after `NEWTON_STEPS`)."""
+    axis, loss, slope = first
+    other = needed & (rival >= -loss - margin)
+    return other | (slope > flat), where(other, runner_up, axis)
 
 
 SEARCH_CHUNK_SIZE = {2: 2048, 3: 512}
@@ -437,48 +456,64 @@ box pairs, against chunks of 1/8 of the batch alone, 0.98x at 4,480 pairs, 0.89x
 1e4, 0.95x at 1e5; 20-vertex hulls 0.95x at 1e4 (a 2-core AMD EPYC)."""
 
 SEARCH_CHUNKS = 8
-"""The fewest chunks: a small batch's wanted searches then fill all but the last, and the
-others are skipped."""
+"""The fewest chunks of first searches: a small batch's then fill all but the last."""
 
 
 @_searches.def_vmap
-def _searches_vmap(axis_size, in_batched, frame, tau, starts, wanted):
-    """The batched `_searches`: the wanted (pair, start) searches are gathered, in chunks, and
-    run; the others get (start, inf, inf) without a search. A plain `vmap` would run them all,
-    since a batched select computes both of its sides."""
+def _searches_vmap(axis_size, in_batched, frame, tau, starts, needed, rival, margin, flat):
+    """The batched `_searches`: the searches run in chunks from a queue of (pair, start)
+    slots that holds every pair's first start, and to which each chunk appends the second
+    searches its first searches want, with their starts (`_second_start` reads the first
+    search's end); the others get (the second start, inf, inf) without a search. A plain
+    `vmap` would run them all, since a batched select computes both of its sides."""
     def batched(x, is_batched):
         return x if is_batched else jnp.broadcast_to(x, (axis_size, *jnp.shape(x)))
 
-    frame, tau, starts, wanted = jax.tree.map(batched, (frame, tau, starts, wanted),
-                                              tuple(in_batched))
-    per_pair = starts.shape[1]
-    slots = axis_size * per_pair
-    starts, wanted = starts.reshape(slots, -1), wanted.reshape(slots)
-    chunks = max(-(-slots // SEARCH_CHUNK_SIZE[frame.dim]), SEARCH_CHUNKS)
-    chunk = max(1, -(-slots // chunks))
-    # The wanted slots, then `slots` (out of range: dropped when written). Each wanted slot
-    # goes to its rank among them (`jnp.nonzero` would trace a nested `jnp.where`).
-    size = chunk * -(-slots // chunk)
-    rank = jnp.cumsum(wanted, dtype=jnp.int32) - 1
-    rows = jnp.full((size,), slots, jnp.int32).at[where(wanted, rank, size)].set(
-        jnp.arange(slots, dtype=jnp.int32), mode="drop")
-    count = jnp.sum(wanted, dtype=jnp.int32)
-    inf = jnp.full((slots,), jnp.inf, starts.dtype)
+    frame, tau, starts, needed, rival, margin, flat = jax.tree.map(
+        batched, (frame, tau, starts, needed, rival, margin, flat), tuple(in_batched))
+    pairs, slots = axis_size, 2 * axis_size
+    chunks = max(-(-pairs // SEARCH_CHUNK_SIZE[frame.dim]), SEARCH_CHUNKS)
+    chunk = max(1, -(-pairs // chunks))
+    # Room for every slot and one chunk more: a slice past the end would be moved back.
+    size = chunk * -(-slots // chunk) + chunk
+    starts = starts.reshape(slots, -1)
+    # Slot 2 p + k is pair p's start k; `slots` marks an empty place (dropped when written).
+    queue = jnp.full((size,), slots, jnp.int32).at[:pairs].set(
+        2 * jnp.arange(pairs, dtype=jnp.int32))
 
     def search_chunk(state):
-        done, found = state
-        picked = jax.lax.dynamic_slice(rows, (done,), (chunk,))
+        done, length, queue, found = state
+        picked = jax.lax.dynamic_slice(queue, (done,), (chunk,))
         slot = jnp.minimum(picked, slots - 1)
-        pair_frames, pair_taus = jax.tree.map(lambda x: x[slot // per_pair], (frame, tau))
-        searched = jax.vmap(_search)(pair_frames, pair_taus, starts[slot])
-        return done + chunk, tuple(old.at[picked].set(new, mode="drop")
-                                   for old, new in zip(found, searched, strict=True))
+        pair = slot // 2
+        pair_frames, pair_taus = jax.tree.map(lambda x: x[pair], (frame, tau))
+        # An unsearched slot holds its start in `found`'s axes.
+        searched = jax.vmap(_search)(pair_frames, pair_taus, found[0][slot])
+        found = tuple(old.at[picked].set(new, mode="drop")
+                      for old, new in zip(found, searched, strict=True))
+        # Each first search decides on its pair's second: its start is written, and the slot
+        # appended at the queue's end, in order (`jnp.nonzero` would trace a nested
+        # `jnp.where`).
+        runner_up = found[0][jnp.minimum(slot + 1, slots - 1)]
+        wanted, start = jax.vmap(_second_start)(needed[pair], rival[pair], margin[pair],
+                                                flat[pair], runner_up, searched)
+        wanted = wanted & (picked < slots) & (slot % 2 == 0)
+        place = where(wanted, slot + 1, slots)
+        found = (found[0].at[place].set(start, mode="drop"), *found[1:])
+        rank = jnp.cumsum(wanted, dtype=jnp.int32) - 1
+        queue = queue.at[where(wanted, length + rank, size)].set(slot + 1, mode="drop")
+        return done + chunk, length + jnp.sum(wanted, dtype=jnp.int32), queue, found
 
-    _, (axes, losses, slopes) = jax.lax.while_loop(
-        lambda state: state[0] < count, search_chunk,
-        (jnp.zeros((), jnp.int32), (starts, inf, inf)))
-    return ((axes.reshape(axis_size, per_pair, -1), losses.reshape(axis_size, per_pair),
-             slopes.reshape(axis_size, per_pair)), (True, True, True))
+    inf = jnp.full((slots,), jnp.inf, starts.dtype)
+    # Second searches are appended after the first searches' last chunk, so that none lands
+    # in a place that chunk has already read.
+    first_places = chunk * -(-pairs // chunk)
+    state = (jnp.zeros((), jnp.int32), jnp.full((), first_places, jnp.int32), queue,
+             (starts, inf, inf))
+    axes, losses, slopes = jax.lax.while_loop(lambda state: state[0] < state[1],
+                                              search_chunk, state)[3]
+    return ((axes.reshape(pairs, 2, -1), losses.reshape(pairs, 2),
+             slopes.reshape(pairs, 2)), (True, True, True))
 
 
 @jax.custom_jvp
@@ -489,43 +524,54 @@ def _maximiser(frame: PairFrame, tau):
     (nearer ones share its basin): where two penetration directions tie, the local maximum
     near each is found, and taking the larger keeps the value continuous when they swap.
     Between values that tie within rounding, the axis where soft_gap is flatter wins. The
-    second search runs only where it could end higher than the first (see below), and under
-    `vmap` on the CPU the others skip it (`_searches_vmap`). Skipping it where the exact
-    distance exceeds c tau: box pairs' value and gradient 0.63x the time at 1e5 pairs (0.95x
-    at 1e4), 20-vertex hulls 0.92x; where the runner-up's gap is also too low, 0.89-0.92x
-    more for boxes (1e4, 1e5), 2D polygons 0.87x at 1e4 and 0.78x at 1e5 (which searched
-    twice everywhere), on a 2-core AMD EPYC."""
+    second search runs only where it could end higher than the first (see below), or, where
+    the first has not flattened out in `NEWTON_STEPS`, on from the first's end; under `vmap`
+    on the CPU the others skip it (`_searches_vmap`). Skipping it where the exact distance
+    exceeds c tau: box pairs' value and gradient 0.63x the time at 1e5 pairs (0.95x at 1e4),
+    20-vertex hulls 0.92x; where no maximum outside the first's basin reaches sd - c tau,
+    0.89-0.92x more for boxes (1e4, 1e5), 2D polygons 0.87x at 1e4 and 0.78x at 1e5 (which
+    searched twice everywhere); where none reaches the first search's end, 0.82x / 0.85x
+    more for 2D polygons (1e4 / 1e5), boxes 0.93x / 0.97x, 20-vertex hulls 0.97x, on a
+    2-core AMD EPYC."""
     frozen, tau = jax.lax.stop_gradient((frame, tau))
     extent = jnp.max(jnp.abs(frozen.a.vertices)) + jnp.max(jnp.abs(frozen.b_vertices))
     apart = jnp.clip(_SECOND_START_ANGLE * tau / extent, 1e-3, 0.5)
     exact = exact_distance(frozen)
     runner_up, runner_up_gap = sat_runner_up(frozen, exact.axis, apart)
     starts = jnp.stack([exact.axis, runner_up])
-    # The second search is needed only where it could end higher than the first, which ends
-    # at least as high as soft_gap(exact axis) >= sd - c tau (c = log(n_a n_b),
-    # `smoothing_error_bound`). Two cases where it cannot:
-    # * The exact distance exceeds c tau: then soft_gap > 0 at the first start already, and
-    #   a positive maximum is the only one as high: where soft_gap > 0, gap > 0 too and
-    #   soft_gap rises along every ray (each u.m > 0), so for two axes with soft_gap >= t > 0,
-    #   concavity holds soft_gap >= t on the segment between them, and the rise along rays on
-    #   the arc above it. A second maximum at least as high would be joined to the first by
-    #   an arc that never dips below it.
-    # * The runner-up's gap is below sd - c tau: the maxima of gap other than the first
-    #   (below 0) are SAT candidates (the facet normals of the Minkowski difference), none
-    #   outside the first's neighbourhood above the runner-up, and soft_gap <= gap, so a
-    #   maximum of soft_gap outside the first's basin ends no higher than the runner-up's gap.
-    #   This skips most second searches of overlapping pairs (random 2D polygon and box
-    #   pairs: 29% of pairs search twice instead of 56%; 20-vertex hulls, whose candidates
-    #   crowd, 50% instead of 52%).
+    # The second search is needed only where it could end higher than the first. Two cases
+    # where it cannot:
+    # * The exact distance exceeds c tau (c = log(n_a n_b), `smoothing_error_bound`): then
+    #   soft_gap > 0 at the first start already, and a positive maximum is the only one as
+    #   high: where soft_gap > 0, gap > 0 too and soft_gap rises along every ray (each
+    #   u.m > 0), so for two axes with soft_gap >= t > 0, concavity holds soft_gap >= t on
+    #   the segment between them, and the rise along rays on the arc above it. A second
+    #   maximum at least as high would be joined to the first by an arc that never dips
+    #   below it.
+    # * No maximum of gap outside the first's basin reaches the first search's end: the
+    #   maxima of gap other than the first (below 0) are facet normals of the Minkowski
+    #   difference, SAT candidates in one sense or the other, and soft_gap <= gap, so a
+    #   maximum of soft_gap outside the first's basin ends no higher than the largest of
+    #   them: the runner-up's gap (the candidates' better senses, away from the first
+    #   axis), or the worse sense of a candidate near the first axis, within `apart` of its
+    #   opposite, whose gap is at most gap(-axis) + extent * apart (gap is extent-Lipschitz
+    #   on the sphere: |u.m - v.m| <= |m| |u - v|). In deep overlaps of near-symmetric pairs
+    #   that opposite sense ties with the first (a box pair's soft maximum there was 1.5e-4
+    #   higher). The first search's end is known only after it: `_searches` reads it, and
+    #   before, the prefilter uses its lower bound soft_gap(exact axis) >= sd - c tau.
+    #   Random 2D polygon pairs search twice at 4% (29% with the lower bound alone, 56%
+    #   without), boxes 13% (30%), 20-vertex hulls 27% (50%), continuations included.
     bound = smoothing_error_bound(frozen.a, frozen.b) * tau
     margin = 64 * jnp.finfo(frozen.dtype).eps * extent
-    needed = (exact.distance <= bound + margin) & (
-        runner_up_gap >= exact.distance - bound - margin)
-    wanted = jnp.stack([jnp.ones_like(needed), needed])
+    opposite_gap = support_gap(-exact.axis, frozen.a.vertices, frozen.b_vertices)
+    rival = jnp.maximum(runner_up_gap, opposite_gap + extent * apart)
+    needed = (exact.distance <= bound + margin) & (rival >= exact.distance - bound - margin)
     if jax.default_backend() == "cpu":
         # On the CPU the searches run in chunks (`_searches_vmap`), which keep their data in
-        # the cache, and only the wanted ones run.
-        axes, losses, slopes = _searches(frozen, tau, starts, wanted)
+        # the cache, and only the wanted second searches run.
+        # A search is flat when its gradient is within 1000 ulps of the extent.
+        flat = (1000 * jnp.finfo(frozen.dtype).eps * extent) ** 2
+        axes, losses, slopes = _searches(frozen, tau, starts, needed, rival, margin, flat)
     else:
         # Off the CPU both searches run as one vmap over the two starts: on an H100 the
         # skipping batching rule's chunks (each 1/8 of the batch's searches, run one after
