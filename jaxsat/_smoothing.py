@@ -425,13 +425,20 @@ def _searches(frame: PairFrame, tau, starts, needed, rival, margin, flat):
     `_second_start` wants one (from the second start, or on from the first's end), else
     (the second start, inf, inf): a result that never wins the comparison in `_maximiser`.
     Under `vmap` only the wanted second searches run (`_searches_vmap`)."""
-    first = _search(frame, tau, starts[0])
-    wanted, start = _second_start(needed, rival, margin, flat, starts[1], first)
-    second = _search(frame, tau, start)
-    inf = jnp.asarray(jnp.inf, first[1].dtype)
-    second = (where(wanted, second[0], starts[1]), where(wanted, second[1], inf),
-              where(wanted, second[2], inf))
-    return tuple(jnp.stack(parts) for parts in zip(first, second, strict=True))
+    def search(decided, index):
+        """The search from the start `decided` holds; after the first, its decision."""
+        found = _search(frame, tau, decided[1])
+        decision = _second_start(needed, rival, margin, flat, starts[1], found)
+        return tuple(where(index == 0, new, old) for new, old in zip(
+            decision, decided, strict=True)), found
+
+    # A scan of two, so that the search is traced once (as under `vmap`).
+    (wanted, _), (axes, losses, slopes) = jax.lax.scan(search, (needed, starts[0]),
+                                                       jnp.arange(2))
+    wanted = jnp.stack([jnp.ones_like(needed), wanted])
+    inf = jnp.asarray(jnp.inf, losses.dtype)
+    return (where(wanted[:, None], axes, starts), where(wanted, losses, inf),
+            where(wanted, slopes, inf))
 
 
 def _second_start(needed, rival, margin, flat, runner_up, first):
