@@ -493,7 +493,7 @@ def test_1e5_polygon_pairs_value_and_gradient_temporaries_stay_under_32_mib():
     """XLA's temporaries for jit(vmap(value_and_grad)) of the exact signed distance over 1e5
     pairs of 8-gons, float32: under 32 MiB, glibc's largest mmap threshold, above which every
     call maps them afresh and faults them in (8,500 page faults a call, 5.5x `penetration`'s
-    time instead of 4.2x, while the SAT stored its concatenated candidate axes: 34.8 MB)."""
+    time instead of 3.9-4.2x, while the SAT stored its concatenated candidate axes: 34.8 MB)."""
     octagon = jaxsat.polygon(np.stack([np.cos(np.arange(8) * np.pi / 4),
                                        np.sin(np.arange(8) * np.pi / 4)], axis=1),
                              max_vertices=8, dtype=np.float32)
