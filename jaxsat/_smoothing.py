@@ -546,8 +546,8 @@ def _maximiser(frame: PairFrame, tau):
     exact = exact_distance(frozen)
     runner_up, runner_up_gap = sat_runner_up(frozen, exact.axis, apart)
     starts = jnp.stack([exact.axis, runner_up])
-    # The second search is needed only where it could end higher than the first. Two cases
-    # where it cannot:
+    # The second search is needed only where it could end higher than the first (on the
+    # CPU, which skips the others). Two cases where it cannot:
     # * The exact distance exceeds c tau (c = log(n_a n_b), `smoothing_error_bound`): then
     #   soft_gap > 0 at the first start already, and a positive maximum is the only one as
     #   high: where soft_gap > 0, gap > 0 too and soft_gap rises along every ray (each
@@ -568,14 +568,15 @@ def _maximiser(frame: PairFrame, tau):
     #   before, the prefilter uses its lower bound soft_gap(exact axis) >= sd - c tau.
     #   Random 2D polygon pairs search twice at 4% (29% with the lower bound alone, 56%
     #   without), boxes 13% (30%), 20-vertex hulls 27% (50%), continuations included.
-    bound = smoothing_error_bound(frozen.a, frozen.b) * tau
-    margin = 64 * jnp.finfo(frozen.dtype).eps * extent
-    opposite_gap = support_gap(-exact.axis, frozen.a.vertices, frozen.b_vertices)
-    rival = jnp.maximum(runner_up_gap, opposite_gap + extent * apart)
-    needed = (exact.distance <= bound + margin) & (rival >= exact.distance - bound - margin)
     if jax.default_backend() == "cpu":
         # On the CPU the searches run in chunks (`_searches_vmap`), which keep their data in
         # the cache, and only the wanted second searches run.
+        bound = smoothing_error_bound(frozen.a, frozen.b) * tau
+        margin = 64 * jnp.finfo(frozen.dtype).eps * extent
+        opposite_gap = support_gap(-exact.axis, frozen.a.vertices, frozen.b_vertices)
+        rival = jnp.maximum(runner_up_gap, opposite_gap + extent * apart)
+        needed = (exact.distance <= bound + margin) & (
+            rival >= exact.distance - bound - margin)
         # A search is flat when its gradient is within 1000 ulps of the extent.
         flat = (1000 * jnp.finfo(frozen.dtype).eps * extent) ** 2
         axes, losses, slopes = _searches(frozen, tau, starts, needed, rival, margin, flat)
