@@ -471,6 +471,15 @@ def test_eager_calls_agree_with_the_oracle_on_a_flat_gjk_stop(dtype):
 
 
 
+def _value_and_gradient_memory(shape, pose, count: int):
+    """XLA's memory analysis of jit(vmap(value_and_grad)) of the exact signed distance over
+    `count` pairs of `shape` at `pose`, compiled as users compile it (shapes only, no data)."""
+    spec = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((count, *leaf.shape), leaf.dtype),
+                        (shape, pose, shape, pose))
+    kernel = jax.jit(jax.vmap(jax.value_and_grad(jaxsat.signed_distance, argnums=(1, 3))))
+    return kernel.lower(*spec).compile().memory_analysis()
+
+
 @pytest.mark.slow
 def test_a_vmap_of_1e5_hull_pairs_value_and_gradient_fits_in_2_gib():
     """XLA's own count (inputs, outputs, temporaries) for jit(vmap(value_and_grad)) of the exact
@@ -479,11 +488,7 @@ def test_a_vmap_of_1e5_hull_pairs_value_and_gradient_fits_in_2_gib():
     rng = np.random.default_rng(0)
     hull = jaxsat.polyhedron(rng.normal(size=(20, 3)), max_vertices=20, dtype=np.float32)
     pose = jaxsat.pose3(np.zeros(3, np.float32), np.array([1, 0, 0, 0], np.float32))
-    count = 100_000
-    spec = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((count, *leaf.shape), leaf.dtype),
-                        (hull, pose, hull, pose))
-    kernel = jax.jit(jax.vmap(jax.value_and_grad(jaxsat.signed_distance, argnums=(1, 3))))
-    memory = kernel.lower(*spec).compile().memory_analysis()
+    memory = _value_and_gradient_memory(hull, pose, 100_000)
     total = (memory.argument_size_in_bytes + memory.output_size_in_bytes
              + memory.temp_size_in_bytes)
     assert total <= 2 * 2**30, total / 2**30
@@ -498,11 +503,7 @@ def test_1e5_polygon_pairs_value_and_gradient_temporaries_stay_under_32_mib():
                                        np.sin(np.arange(8) * np.pi / 4)], axis=1),
                              max_vertices=8, dtype=np.float32)
     pose = jaxsat.pose2(np.float32(0.0), np.float32(0.0), np.float32(0.0))
-    count = 100_000
-    spec = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((count, *leaf.shape), leaf.dtype),
-                        (octagon, pose, octagon, pose))
-    kernel = jax.jit(jax.vmap(jax.value_and_grad(jaxsat.signed_distance, argnums=(1, 3))))
-    temporaries = kernel.lower(*spec).compile().memory_analysis().temp_size_in_bytes
+    temporaries = _value_and_gradient_memory(octagon, pose, 100_000).temp_size_in_bytes
     assert temporaries < 32 * 2**20, temporaries / 2**20
 
 
