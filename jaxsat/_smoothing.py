@@ -51,14 +51,19 @@ from jaxsat._shapes import Polytope
 
 __all__ = ["NEWTON_STEPS", "smooth_signed_distance", "smoothing_error_bound"]
 
-NEWTON_STEPS = 10
-"""Trust-region Newton steps from each start. At tau = 0.005 (1% of the shapes' size), 10
-steps from both starts brought 2e4 random 2D pairs, 1e4 box pairs and 5e3 20-vertex hull
-pairs within 2e-8 rad of the maximiser 40 steps find in float64 (all within 1e-12 but one box
-pair), and within 7e-7 rad in float32; 8 steps leave up to 5e-4 rad. From the exact
-maximiser alone, 0.2% of 20-vertex hull pairs and 0.03% of 2D polygon pairs have not
-flattened out after 10 (one hull pair's maximum lay 29 degrees away); those go on for as many
-again (`_second_start`)."""
+NEWTON_STEPS = 4
+"""Trust-region Newton steps in one pass of a search. After a pass, a search whose Newton
+step is short enough (`_converged`) takes that step unchecked and is done; the others go on
+for another pass, up to `SEARCH_PASSES`. On the benchmarks' random pairs (tau = 0.005, 1% of
+the shapes' size, float32), one pass leaves 6.5% of 2D polygon searches, 17% of box and 21%
+of 20-vertex hull searches not done, two passes 0.1%, 1.3% and 1.9%. The fixed 10 steps from
+every start this replaced gave values and gradients equal to these within 2e-7 and 1.1e-5
+(float64: 5e-16 and 2e-14) and took 1.1-1.2x the CPU time (2D polygons and boxes, 1e4
+pairs). Passes of 3 and 5 steps ran as many steps in all, in more or fuller chunks."""
+
+SEARCH_PASSES = 5
+"""The most passes of `NEWTON_STEPS` a search takes: one hull pair's maximum lay 29 degrees
+from the exact axis and needed 13 steps."""
 
 UNROLLED_VERTICES = 10
 """Shapes of at most this many vertices (padding included) take a step's moments, and the
@@ -338,14 +343,18 @@ def _trust_region_step(gradient, hessian, radius):
     return step, gain
 
 
-def _search(frame: PairFrame, tau, start):
-    """The axis maximising soft_gap from `start` (values only), minus soft_gap there (as
-    tracked by the loop), and the squared norm of soft_gap's gradient on the sphere there:
-    trust-region Newton steps on
-    the sphere, each accepted only if soft_gap rises; the region grows when the model predicted
-    the rise well and shrinks when it did not. The loop carries the axis, the radius, the step
-    stretch and the axis's moments (`_packed_moments`), and everything between two packed
-    moments is scalar arithmetic, so a step is a few passes over a batch."""
+def _search(frame: PairFrame, tau, start, radius):
+    """One pass of a search for the axis maximising soft_gap (values only): `NEWTON_STEPS`
+    trust-region Newton steps on the sphere from `start`, each accepted only if soft_gap
+    rises; the region (first radius `radius`, or where that is 0 `_FIRST_RADIUS`) grows when
+    the model predicted the rise well and shrinks when it did not. The loop carries the axis,
+    the radius, the step stretch and the axis's moments (`_packed_moments`), and everything
+    between two packed moments is scalar arithmetic, so a step is a few passes over a batch.
+
+    Returns the axis, minus soft_gap there (as tracked by the loop), the squared norm of
+    soft_gap's gradient on the sphere there, the radius, and whether the search is done: its
+    Newton step is shorter than `_converged`'s length, and the axis returned has taken it
+    (unchecked: from there Newton's method lands within rounding of the maximum)."""
     summary = _summary(frame)
     extent = summary.extent
     rounding = 16 * jnp.finfo(frame.dtype).eps * (extent + jnp.max(jnp.abs(summary.offsets)))
@@ -403,13 +412,44 @@ def _search(frame: PairFrame, tau, start):
     # `vmap` (over pairs, and over the two starts) the whole state is batched from the start:
     # each loop batching rule then traces the step once less.
     zero = 0 * start[0]
-    radius = jnp.minimum(_FIRST_RADIUS * tau / extent, _MAX_RADIUS) + zero
+    radius = where(radius > 0, radius, jnp.minimum(_FIRST_RADIUS * tau / extent, _MAX_RADIUS)
+                   ) + zero
     state = (start, _packed_moments(summary, kernels.as_vec(start), tau, store_weights=True),
              radius, 1 + zero)
-    axis, packed, _, _ = jax.lax.fori_loop(0, NEWTON_STEPS, step, state)
+    axis, packed, radius, _ = jax.lax.fori_loop(0, NEWTON_STEPS, step, state)
     axis = kernels.as_vec(axis)
-    gradient = _riemannian(axis, _unpack(summary, packed), tau)[1]
-    return jnp.stack(axis), packed[1][0] + packed[0][0], kernels.vdot(gradient, gradient)
+    basis, gradient, hessian = _riemannian(axis, _unpack(summary, packed), tau)
+    move, done = _newton_step(gradient, hessian, _converged(tau, extent))
+    moved = kernels.vadd(axis, kernels.vsum([kernels.vscale(m, e)
+                                             for m, e in zip(move, basis, strict=True)]))
+    moved = kernels.vscale(jax.lax.rsqrt(kernels.vdot(moved, moved)), moved)
+    return (jnp.stack(kernels.vselect(done, moved, axis)), packed[1][0] + packed[0][0],
+            kernels.vdot(gradient, gradient), radius, done)
+
+
+def _converged(tau, extent):
+    """The squared length (rad^2) of a Newton step below which a search is done.
+
+    soft_gap's k-th derivative in the axis is of order extent^k / tau^(k-1), so a Newton
+    step from an axis e radians off the maximum lands about (extent / tau) e^2 off it: within
+    eps radians where e^2 <= eps tau / extent (float32 at tau = 1% of the extent: 3.5e-5 rad;
+    float64 1.5e-9)."""
+    return jnp.finfo(tau.dtype).eps * tau / extent
+
+
+def _newton_step(gradient, hessian, longest):
+    """Newton's step d = -H^-1 g (m scalars, m = 1 or 2) on the tangent plane, and whether it
+    leads to a maximum and its squared length is at most `longest` (H negative definite)."""
+    if len(gradient) == 1:
+        curvature = hessian[0][0]
+        step = (-safe_divide(gradient[0], curvature, curvature < 0),)
+        return step, (curvature < 0) & (step[0] ** 2 <= longest)
+    (h00, h01), (_, h11) = hessian
+    determinant = h00 * h11 - h01**2
+    definite = (h00 < 0) & (determinant > 0)
+    step = (-safe_divide(h11 * gradient[0] - h01 * gradient[1], determinant, definite),
+            -safe_divide(h00 * gradient[1] - h01 * gradient[0], determinant, definite))
+    return step, definite & (kernels.vdot(step, step) <= longest)
 
 
 def soft_gap(frame: PairFrame, axis, tau):
@@ -419,43 +459,48 @@ def soft_gap(frame: PairFrame, axis, tau):
     return -soft_b - soft_a
 
 
+def _passes(frame: PairFrame, tau, start):
+    """A whole search from `start`: passes of `_search` until one is done or
+    `SEARCH_PASSES` have run; its (axis, loss, slope)."""
+    def one_more(state):
+        axis, _, _, radius, _, count = state
+        return (*_search(frame, tau, axis, radius), count + 1)
+
+    zero = 0 * start[0]
+    inf = jnp.inf + zero
+    state = (start, inf, inf, zero, zero > 0, jnp.zeros((), jnp.int32))
+    return jax.lax.while_loop(lambda state: ~state[4] & (state[5] < SEARCH_PASSES), one_more,
+                              state)[:3]
+
+
 @jax.custom_batching.custom_vmap
-def _searches(frame: PairFrame, tau, starts, needed, rival, margin, flat):
-    """`_search` from the first of the (2, D) `starts`, then a second search where
-    `_second_start` wants one (from the second start, or on from the first's end), else
-    (the second start, inf, inf): a result that never wins the comparison in `_maximiser`.
-    Under `vmap` only the wanted second searches run (`_searches_vmap`)."""
-    def search(decided, index):
-        """The search from the start `decided` holds; after the first, its decision."""
-        found = _search(frame, tau, decided[1])
-        decision = _second_start(needed, rival, margin, flat, starts[1], found)
-        return tuple(where(index == 0, new, old) for new, old in zip(
-            decision, decided, strict=True)), found
+def _searches(frame: PairFrame, tau, starts, needed, rival, margin):
+    """A whole search (`_passes`) from the first of the (2, D) `starts`, then from the second
+    where `_second_start` wants one, else (the second start, inf, inf): a result that never
+    wins the comparison in `_maximiser`. Under `vmap` the searches' passes run from a queue,
+    and only the wanted second searches run (`_searches_vmap`)."""
+    def search(wanted, index):
+        found = _passes(frame, tau, starts[index])
+        return where(index == 0, _second_start(needed, rival, margin, found[1]), wanted), found
 
     # A scan of two, so that the search is traced once (as under `vmap`).
-    (wanted, _), (axes, losses, slopes) = jax.lax.scan(search, (needed, starts[0]),
-                                                       jnp.arange(2))
+    wanted, (axes, losses, slopes) = jax.lax.scan(search, needed, jnp.arange(2))
     wanted = jnp.stack([jnp.ones_like(needed), wanted])
     inf = jnp.asarray(jnp.inf, losses.dtype)
     return (where(wanted[:, None], axes, starts), where(wanted, losses, inf),
             where(wanted, slopes, inf))
 
 
-def _second_start(needed, rival, margin, flat, runner_up, first):
-    """(whether a second search runs, its start) after the first search (`_search`'s
-    (axis, loss, slope)): from the runner-up where it could end higher than the first
-    (`needed`, and `rival`, a bound on the maxima outside the first's basin, reaches the
-    first's end; see `_maximiser`); else on from the first's end where that is not yet flat
-    (squared gradient above `flat`: 0.2% of 20-vertex hull pairs, 0.03% of 2D polygon pairs,
-    no box pairs after `NEWTON_STEPS`)."""
-    axis, loss, slope = first
-    other = needed & (rival >= -loss - margin)
-    return other | (slope > flat), where(other, runner_up, axis)
+def _second_start(needed, rival, margin, loss):
+    """Whether the search from the runner-up runs, after the first search has ended at minus
+    soft_gap `loss`: where it could end higher (`needed`, and `rival`, a bound on the maxima
+    outside the first's basin, reaches the first's end; see `_maximiser`)."""
+    return needed & (rival >= -loss - margin)
 
 
 SEARCH_CHUNK_SIZE = {2: 2048, 3: 512}
-"""The most searches in one chunk, by dimension. Chunks keep a batch's search data in the
-cache: 2D polygons' smooth value and gradient took 0.67-0.79x the time at 1e5 pairs in
+"""The most search passes in one chunk, by dimension. Chunks keep a batch's search data in
+the cache: 2D polygons' smooth value and gradient took 0.67-0.79x the time at 1e5 pairs in
 chunks of 2,048 (0.85-0.89x at 1e4; 0.99x at 1e3) against one vmap over all searches.
 Smaller chunks cost more passes (about 10 us a chunk in 2D, 80 us in 3D); since only the
 wanted searches run, they also waste less on the last chunk, which those fill only in part:
@@ -467,22 +512,25 @@ SEARCH_CHUNKS = 8
 
 
 @_searches.def_vmap
-def _searches_vmap(axis_size, in_batched, frame, tau, starts, needed, rival, margin, flat):
-    """The batched `_searches`: the searches run in chunks from a queue of (pair, start)
-    slots that holds every pair's first start, and to which each chunk appends the second
-    searches its first searches want, with their starts (`_second_start` reads the first
-    search's end); the others get (the second start, inf, inf) without a search. A plain
-    `vmap` would run them all, since a batched select computes both of its sides."""
+def _searches_vmap(axis_size, in_batched, frame, tau, starts, needed, rival, margin):
+    """The batched `_searches`: the search passes (`_search`) run in chunks from a queue of
+    (pair, start) slots. The queue starts with every pair's first start; after each chunk a
+    search that is not done (and has passes left) goes back to the queue's end from where it
+    stopped, and a first search that is done appends its pair's second search where
+    `_second_start` wants one; other second searches give (the second start, inf, inf)
+    without a search. A plain `vmap` would run every search for as many passes as the
+    slowest needs, since a batched loop runs until its last member ends."""
     def batched(x, is_batched):
         return x if is_batched else jnp.broadcast_to(x, (axis_size, *jnp.shape(x)))
 
-    frame, tau, starts, needed, rival, margin, flat = jax.tree.map(
-        batched, (frame, tau, starts, needed, rival, margin, flat), tuple(in_batched))
+    frame, tau, starts, needed, rival, margin = jax.tree.map(
+        batched, (frame, tau, starts, needed, rival, margin), tuple(in_batched))
     pairs, slots = axis_size, 2 * axis_size
     chunks = max(-(-pairs // SEARCH_CHUNK_SIZE[frame.dim]), SEARCH_CHUNKS)
     chunk = max(1, -(-pairs // chunks))
-    # Room for every slot and one chunk more: a slice past the end would be moved back.
-    size = chunk * -(-slots // chunk) + chunk
+    # A ring: a slot is in the queue at most once at a time, so `slots` places hold every
+    # waiting one and the chunk being read; read places are emptied as the ring comes round.
+    size = slots + chunk
     starts = starts.reshape(slots, -1)
     # Slot 2 p + k is pair p's start k; `slots` marks an empty place (dropped when written).
     queue = jnp.full((size,), slots, jnp.int32).at[:pairs].set(
@@ -490,35 +538,36 @@ def _searches_vmap(axis_size, in_batched, frame, tau, starts, needed, rival, mar
 
     def search_chunk(state):
         done, length, queue, found = state
-        picked = jax.lax.dynamic_slice(queue, (done,), (chunk,))
+        places = (done + jnp.arange(chunk, dtype=jnp.int32)) % size
+        picked = queue[places]
+        queue = queue.at[places].set(slots)
         slot = jnp.minimum(picked, slots - 1)
         pair = slot // 2
         pair_frames, pair_taus = jax.tree.map(lambda x: x[pair], (frame, tau))
-        # An unsearched slot holds its start in `found`'s axes.
-        searched = jax.vmap(_search)(pair_frames, pair_taus, found[0][slot])
-        found = tuple(old.at[picked].set(new, mode="drop")
-                      for old, new in zip(found, searched, strict=True))
-        # Each first search decides on its pair's second: its start is written, and the slot
-        # appended at the queue's end, in order (`jnp.nonzero` would trace a nested
-        # `jnp.where`).
-        runner_up = found[0][jnp.minimum(slot + 1, slots - 1)]
-        wanted, start = jax.vmap(_second_start)(needed[pair], rival[pair], margin[pair],
-                                                flat[pair], runner_up, searched)
-        wanted = wanted & (picked < slots) & (slot % 2 == 0)
-        place = where(wanted, slot + 1, slots)
-        found = (found[0].at[place].set(start, mode="drop"), *found[1:])
-        rank = jnp.cumsum(wanted, dtype=jnp.int32) - 1
-        queue = queue.at[where(wanted, length + rank, size)].set(slot + 1, mode="drop")
-        return done + chunk, length + jnp.sum(wanted, dtype=jnp.int32), queue, found
+        # A waiting slot holds where it goes on from (at first, its start) in `found`.
+        axis, loss, slope, radius, finished = jax.vmap(_search)(
+            pair_frames, pair_taus, found[0][slot], found[3][slot])
+        count = found[4][slot] + 1
+        found = tuple(old.at[picked].set(new, mode="drop") for old, new in zip(
+            found, (axis, loss, slope, radius, count), strict=True))
+        real = picked < slots
+        again = real & ~finished & (count < SEARCH_PASSES)
+        second = real & ~again & (slot % 2 == 0) & jax.vmap(_second_start)(
+            needed[pair], rival[pair], margin[pair], loss)
+        entry = where(again, slot, where(second, slot + 1, slots))
+        # Appended in order after every waiting slot (`jnp.nonzero` would trace a nested
+        # `jnp.where`); places this chunk read are past, even where it read beyond the end.
+        end = jnp.maximum(length, done + chunk)
+        queued = entry < slots
+        rank = jnp.cumsum(queued, dtype=jnp.int32) - 1
+        queue = queue.at[where(queued, (end + rank) % size, size)].set(entry, mode="drop")
+        return done + chunk, end + jnp.sum(queued, dtype=jnp.int32), queue, found
 
     inf = jnp.full((slots,), jnp.inf, starts.dtype)
-    # Second searches are appended after the first searches' last chunk, so that none lands
-    # in a place that chunk has already read.
-    first_places = chunk * -(-pairs // chunk)
-    state = (jnp.zeros((), jnp.int32), jnp.full((), first_places, jnp.int32), queue,
-             (starts, inf, inf))
+    found = (starts, inf, inf, jnp.zeros((slots,), starts.dtype), jnp.zeros((slots,), jnp.int32))
+    state = (jnp.zeros((), jnp.int32), jnp.full((), pairs, jnp.int32), queue, found)
     axes, losses, slopes = jax.lax.while_loop(lambda state: state[0] < state[1],
-                                              search_chunk, state)[3]
+                                              search_chunk, state)[3][:3]
     return ((axes.reshape(pairs, 2, -1), losses.reshape(pairs, 2),
              slopes.reshape(pairs, 2)), (True, True, True))
 
@@ -531,9 +580,9 @@ def _maximiser(frame: PairFrame, tau):
     (nearer ones share its basin): where two penetration directions tie, the local maximum
     near each is found, and taking the larger keeps the value continuous when they swap.
     Between values that tie within rounding, the axis where soft_gap is flatter wins. The
-    second search runs only where it could end higher than the first (see below), or, where
-    the first has not flattened out in `NEWTON_STEPS`, on from the first's end; under `vmap`
-    on the CPU the others skip it (`_searches_vmap`). Skipping it where the exact distance
+    second search runs only where it could end higher than the first (see below); under
+    `vmap` on the CPU the others skip it, and each search runs only as many passes of
+    `NEWTON_STEPS` as it needs (`_searches_vmap`). Skipping it where the exact distance
     exceeds c tau: box pairs' value and gradient 0.63x the time at 1e5 pairs (0.95x at 1e4),
     20-vertex hulls 0.92x; where no maximum outside the first's basin reaches sd - c tau,
     0.89-0.92x more for boxes (1e4, 1e5), 2D polygons 0.87x at 1e4 and 0.78x at 1e5 (which
@@ -567,7 +616,7 @@ def _maximiser(frame: PairFrame, tau):
     #   higher). The first search's end is known only after it: `_searches` reads it, and
     #   before, the prefilter uses its lower bound soft_gap(exact axis) >= sd - c tau.
     #   Random 2D polygon pairs search twice at 4% (29% with the lower bound alone, 56%
-    #   without), boxes 13% (30%), 20-vertex hulls 27% (50%), continuations included.
+    #   without), boxes 13% (30%), 20-vertex hulls 27% (50%).
     if jax.default_backend() == "cpu":
         # On the CPU the searches run in chunks (`_searches_vmap`), which keep their data in
         # the cache, and only the wanted second searches run.
@@ -577,15 +626,13 @@ def _maximiser(frame: PairFrame, tau):
         rival = jnp.maximum(runner_up_gap, opposite_gap + extent * apart)
         needed = (exact.distance <= bound + margin) & (
             rival >= exact.distance - bound - margin)
-        # A search is flat when its gradient is within 1000 ulps of the extent.
-        flat = (1000 * jnp.finfo(frozen.dtype).eps * extent) ** 2
-        axes, losses, slopes = _searches(frozen, tau, starts, needed, rival, margin, flat)
+        axes, losses, slopes = _searches(frozen, tau, starts, needed, rival, margin)
     else:
         # Off the CPU both searches run as one vmap over the two starts: on an H100 the
         # skipping batching rule's chunks (each 1/8 of the batch's searches, run one after
         # another) left box pairs' value and gradient 2.6x slower at 1e5 pairs (1.34e7
         # against 3.45e7 pairs/s) and no faster at 1e6 (benchmarks/results/gpu-nvidia-h100.md).
-        axes, losses, slopes = jax.vmap(_search, in_axes=(None, None, 0))(frozen, tau, starts)
+        axes, losses, slopes = jax.vmap(_passes, in_axes=(None, None, 0))(frozen, tau, starts)
     # Near a maximum soft_gap changes only to second order, so an axis 1e-8 off the maximum
     # (a search that ran out of steps) has a value equal to the maximum up to rounding, but
     # a gradient off by 1e-8: between values that tie within rounding, the flatter axis wins.
