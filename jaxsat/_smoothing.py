@@ -372,9 +372,7 @@ def _search(frame: PairFrame, tau, start, radius):
         # the model's: there the step is stretched by `boost`, doubled after each success.
         length = jnp.sqrt(kernels.vdot(move, move))
         stretch = safe_divide(jnp.minimum(boost * length, _MAX_RADIUS), length, length > 0)
-        moved = kernels.vadd(axis, kernels.vsum([kernels.vscale(stretch * m, e)
-                                                 for m, e in zip(move, basis, strict=True)]))
-        trial = kernels.vscale(jax.lax.rsqrt(kernels.vdot(moved, moved)), moved)
+        trial = _turned(axis, basis, [stretch * m for m in move])
         # Stored once (rule 5 of `_kernels`): the trial's moments, and the decisions, read by
         # every output below.
         trial = kernels.materialize(trial)
@@ -421,11 +419,8 @@ def _search(frame: PairFrame, tau, start, radius):
     axis = kernels.as_vec(axis)
     basis, gradient, hessian = _riemannian(axis, _unpack(summary, packed), tau)
     move, done = _newton_step(gradient, hessian, _converged(tau, extent))
-    moved = kernels.vadd(axis, kernels.vsum([kernels.vscale(m, e)
-                                             for m, e in zip(move, basis, strict=True)]))
-    moved = kernels.vscale(jax.lax.rsqrt(kernels.vdot(moved, moved)), moved)
-    return (jnp.stack(kernels.vselect(done, moved, axis)), packed[1][0] + packed[0][0],
-            kernels.vdot(gradient, gradient), radius, done)
+    return (jnp.stack(kernels.vselect(done, _turned(axis, basis, move), axis)),
+            packed[1][0] + packed[0][0], kernels.vdot(gradient, gradient), radius, done)
 
 
 def _converged(tau, extent):
@@ -441,16 +436,41 @@ def _converged(tau, extent):
 def _newton_step(gradient, hessian, longest):
     """Newton's step d = -H^-1 g (m scalars, m = 1 or 2) on the tangent plane, and whether it
     leads to a maximum and its squared length is at most `longest` (H negative definite)."""
-    if len(gradient) == 1:
-        curvature = hessian[0][0]
-        step = (-safe_divide(gradient[0], curvature, curvature < 0),)
-        return step, (curvature < 0) & (step[0] ** 2 <= longest)
-    (h00, h01), (_, h11) = hessian
-    determinant = h00 * h11 - h01**2
-    definite = (h00 < 0) & (determinant > 0)
-    step = (-safe_divide(h11 * gradient[0] - h01 * gradient[1], determinant, definite),
-            -safe_divide(h00 * gradient[1] - h01 * gradient[0], determinant, definite))
+    determinant = _determinant(hessian)
+    definite = determinant < 0 if len(gradient) == 1 else (hessian[0][0] < 0) & (
+        determinant > 0)
+    step = tuple(-d for d in _solve(hessian, gradient, definite))
     return step, definite & (kernels.vdot(step, step) <= longest)
+
+
+def _determinant(hessian):
+    """det H of the tangent-plane Hessian (m x m scalars, m = 1 or 2)."""
+    if len(hessian) == 1:
+        return hessian[0][0]
+    (h00, h01), (_, h11) = hessian
+    return h00 * h11 - h01**2
+
+
+def _solve(hessian, right, valid):
+    """H^-1 right (m scalars, m = 1 or 2): the adjugate's product over det H, divided only
+    where `valid` (safe_divide: no 0/0 where H is singular), else 0."""
+    determinant = _determinant(hessian)
+    if len(right) == 1:
+        return (safe_divide(right[0], determinant, valid),)
+    (h00, h01), (_, h11) = hessian
+    return (safe_divide(h11 * right[0] - h01 * right[1], determinant, valid),
+            safe_divide(h00 * right[1] - h01 * right[0], determinant, valid))
+
+
+def _tangent(move, basis) -> Vec:
+    """The tangent vector with coordinates `move` in the tangent `basis`."""
+    return kernels.vsum([kernels.vscale(m, e) for m, e in zip(move, basis, strict=True)])
+
+
+def _turned(axis, basis, move) -> Vec:
+    """The unit axis at axis + `move` (tangent coordinates), back on the sphere."""
+    moved = kernels.vadd(axis, _tangent(move, basis))
+    return kernels.vscale(jax.lax.rsqrt(kernels.vdot(moved, moved)), moved)
 
 
 def soft_gap(frame: PairFrame, axis, tau):
@@ -663,15 +683,8 @@ def _maximiser_jvp(primals, tangents):
     basis, _, hessian = _riemannian(kernels.as_vec(axis), moments(frame, tau), tau)
     _, moved = jax.jvp(lambda f, t: moments(f, t).gradient, primals, tangents)
     right = [-kernels.vdot(e, moved) for e in basis]
-    if len(basis) == 1:
-        step = [safe_divide(right[0], hessian[0][0], hessian[0][0] != 0)]
-    else:
-        (h00, h01), (_, h11) = hessian
-        determinant = h00 * h11 - h01**2
-        step = [safe_divide(h11 * right[0] - h01 * right[1], determinant, determinant != 0),
-                safe_divide(h00 * right[1] - h01 * right[0], determinant, determinant != 0)]
-    return axis, jnp.stack(kernels.vsum([kernels.vscale(d, e)
-                                         for d, e in zip(step, basis, strict=True)]))
+    step = _solve(hessian, right, _determinant(hessian) != 0)
+    return axis, jnp.stack(_tangent(step, basis))
 
 
 @jax.custom_jvp
