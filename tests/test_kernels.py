@@ -299,6 +299,7 @@ def test_gjk_loop_reads_the_vertices_as_columns():
     assert len(captured) <= 2 * 3, [var.aval for var in captured]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(jax.default_backend() != "cpu", reason="XLA CPU's fusion choice")
 def test_exact_distance_gradient_compares_each_witness_index_in_one_pass():
     """The witness points p and q, in their shapes' frames, are stored once

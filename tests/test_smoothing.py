@@ -433,7 +433,8 @@ def test_the_newton_steps_reach_the_maximiser_of_a_long_search(name, monkeypatch
 
 
 @pytest.mark.parametrize(("name", "chunk_size"), [
-    ("box", None), ("hull8", None), pytest.param("box", 4, marks=pytest.mark.slow)],
+    ("box", None), pytest.param("hull8", None, marks=pytest.mark.slow),
+    pytest.param("box", 4, marks=pytest.mark.slow)],
     ids=["box-eighth", "hull8-eighth", "box-capped"])
 def test_batched_searches_equal_single_calls(name, chunk_size, monkeypatch):
     """In 3D, `vmap` of the searches runs every first search and only the wanted second ones,
@@ -509,6 +510,7 @@ def test_a_large_batch_searches_in_chunks_of_at_most_the_chunk_size(name, count,
     assert {var.aval.shape[0] for var in loops[0].outvars if var.aval.shape} == {chunk}
 
 
+@pytest.mark.slow
 def test_off_the_cpu_both_3d_searches_run_and_give_the_same_answer(monkeypatch):
     """Off the CPU (`jax.default_backend()` other than "cpu", where the skipping batching
     rule's sequential chunks cost more than they save), the 3D smooth distance runs both
