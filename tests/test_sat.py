@@ -867,7 +867,7 @@ def test_parallelepiped_frame_spans_the_corners(dtype):
         assert np.max(np.min(distances, axis=0)) <= tolerance
 
 
-@pytest.mark.slow  # 35-55 s a dtype on a 2-core VM: the fast subset keeps the oracle tests of boxes
+@pytest.mark.slow  # 20-35 s a dtype on a 2-core VM: the fast subset keeps the oracle tests of boxes
 @pytest.mark.parametrize("dtype", DTYPES, ids=DTYPE_IDS)
 def test_box_kernel_equals_the_general_path(dtype):
     """Two parallelepipeds (boxes, and sheared ones off their origin) take the box kernel
