@@ -700,14 +700,14 @@ def _smooth_value_jvp(primals, tangents):
     """The envelope theorem: the derivative of soft_gap with its maximising axis held fixed
     (the axis's own motion changes soft_gap only to second order).
 
-    Through b's moved vertices, so that the poses' derivatives are sums over the vertices
-    (reductions, which XLA's CPU backend hands to YNNPACK). Writing it instead through two
-    points, u . (dq - dp) with p and q the softmax-weighted vertices (q formed in b's own
-    frame, as `signed_distance_of_witnesses` does), removed those reductions but not time:
-    the smooth value and gradient took 1.014x (2D polygons) and 1.007x (boxes) as long, 1e4
-    pairs on one core of a 2-core AMD EPYC, although alone, the pose gradient of the sum of
-    b's projections on a fixed axis took 7x as long with YNNPACK's reductions as with XLA's
-    own (3.7 against 0.5 ms at 1e4 pairs)."""
+    The derivative goes through b's moved vertices, so the poses' derivatives are sums over
+    the vertices (reductions, which XLA's CPU backend hands to YNNPACK). Writing it instead
+    through two points, u . (dq - dp) with p and q the softmax-weighted vertices (q formed
+    in b's own frame, as `signed_distance_of_witnesses` does), removed those reductions but
+    no time: the smooth value and gradient took 1.014x (2D polygons) and 1.007x (boxes) as
+    long, 1e4 pairs on one core of a 2-core AMD EPYC. Measured alone, the pose gradient of
+    the sum of b's projections on a fixed axis did take 7x as long with YNNPACK's reductions
+    as with XLA's own (3.7 against 0.5 ms at 1e4 pairs)."""
     frame, tau = primals
     axis = _maximiser(frame, tau)
     return jax.jvp(lambda f, t: soft_gap(f, axis, t), primals, tangents)
