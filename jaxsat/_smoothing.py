@@ -531,8 +531,17 @@ wanted searches run, they also waste less on the last chunk, which those fill on
 box pairs, against chunks of 1/8 of the batch alone, 0.98x at 4,480 pairs, 0.89x at
 1e4, 0.95x at 1e5; 20-vertex hulls 0.95x at 1e4 (a 2-core AMD EPYC)."""
 
-SEARCH_CHUNKS = 8
-"""The fewest chunks of first searches: a small batch's then fill all but the last."""
+SEARCH_CHUNKS = 16
+"""The fewest chunks of first searches, unless they would hold fewer than
+`SMALLEST_SEARCH_CHUNK` pairs: a small batch's then fill all but the last. Against 8 chunks,
+smooth value and gradient, same process, both orders: 2D polygons 0.92x / 0.93x the time at
+1e4 pairs (chunks of 625 instead of 1,250), 0.97x / 0.99x at 4,480; boxes 0.94x / 0.95x and
+20-vertex hulls 0.98x / 0.99x at 4,480 (a 2-core AMD EPYC, one core)."""
+
+SMALLEST_SEARCH_CHUNK = 128
+"""The fewest first searches a chunk holds when a batch is cut into `SEARCH_CHUNKS` for its
+own sake (a batch of fewer pairs is one chunk): 16 chunks of 63 took 1.03-1.14x the time of
+8 chunks of 125 on 1e3 2D pairs, the passes' fixed cost outweighing the shorter last chunk."""
 
 
 @_searches.def_vmap
@@ -550,7 +559,8 @@ def _searches_vmap(axis_size, in_batched, frame, tau, starts, needed, rival, mar
     frame, tau, starts, needed, rival, margin = jax.tree.map(
         batched, (frame, tau, starts, needed, rival, margin), tuple(in_batched))
     pairs, slots = axis_size, 2 * axis_size
-    chunks = max(-(-pairs // SEARCH_CHUNK_SIZE[frame.dim]), SEARCH_CHUNKS)
+    chunks = max(-(-pairs // SEARCH_CHUNK_SIZE[frame.dim]),
+                 min(SEARCH_CHUNKS, -(-pairs // SMALLEST_SEARCH_CHUNK)))
     chunk = max(1, -(-pairs // chunks))
     # A ring: a slot is in the queue at most once at a time, so `slots` places hold every
     # waiting one and the chunk being read; read places are emptied as the ring comes round.
@@ -653,7 +663,7 @@ def _maximiser(frame: PairFrame, tau):
         axes, losses, slopes = _searches(frozen, tau, starts, needed, rival, margin)
     else:
         # Off the CPU both searches run as one vmap over the two starts: on an H100 the
-        # skipping batching rule's chunks (each 1/8 of the batch's searches, run one after
+        # skipping batching rule's chunks (then each 1/8 of the batch's searches, run one after
         # another) left box pairs' value and gradient 2.6x slower at 1e5 pairs (1.34e7
         # against 3.45e7 pairs/s) and no faster at 1e6 (benchmarks/results/gpu-nvidia-h100.md).
         axes, losses, slopes = jax.vmap(_passes, in_axes=(None, None, 0))(frozen, tau, starts)

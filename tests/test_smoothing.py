@@ -434,14 +434,15 @@ def test_the_newton_steps_reach_the_maximiser_of_a_long_search(name, monkeypatch
 
 @pytest.mark.parametrize(("name", "chunk_size"), [
     ("box", None), pytest.param("hull8", None, marks=pytest.mark.slow),
-    pytest.param("box", 4, marks=pytest.mark.slow)],
-    ids=["box-eighth", "hull8-eighth", "box-capped"])
+    pytest.param("box", 2, marks=pytest.mark.slow)],
+    ids=["box-sixteenth", "hull8-sixteenth", "box-capped"])
 def test_batched_searches_equal_single_calls(name, chunk_size, monkeypatch):
     """In 3D, `vmap` of the searches runs every first search and only the wanted second ones,
-    in passes from a queue, in chunks of 1/8 of the batch's pairs or `SEARCH_CHUNK_SIZE`, the
+    in passes from a queue, in chunks of 1/16 of the batch's pairs or `SEARCH_CHUNK_SIZE`, the
     smaller: a search that is not done after a pass goes back to the queue's end, and a first
-    search that is done appends its pair's second where that is wanted. On 37 pairs (chunks
-    of 5, or of 4 with the size capped at 4; the last first chunk partly padding), with 2
+    search that is done appends its pair's second where that is wanted. On 37 pairs, with no
+    least chunk size (chunks of 3, or of 2 with the size capped at 2; the last first chunk
+    partly padding), with 2
     Newton steps a pass (so that most searches take several passes, the queue's ring comes
     round, and some end out of passes), half of the second searches from the runner-up, half
     skipped: the batched results equal single calls (`_passes` in a loop), a skipped search
@@ -451,6 +452,7 @@ def test_batched_searches_equal_single_calls(name, chunk_size, monkeypatch):
     the wrong slot would be off by the distance between two axes, of order 1.)"""
     if chunk_size is not None:
         monkeypatch.setattr(smoothing, "SEARCH_CHUNK_SIZE", {2: chunk_size, 3: chunk_size})
+    monkeypatch.setattr(smoothing, "SMALLEST_SEARCH_CHUNK", 1)
     monkeypatch.setattr(smoothing, "NEWTON_STEPS", 2)
     shapes = pool(name, np.float64)
     pairs = random_pairs(shapes, shapes, 37, np.random.default_rng(72), np.float64)
@@ -479,13 +481,18 @@ def test_batched_searches_equal_single_calls(name, chunk_size, monkeypatch):
     assert np.all(np.isfinite(batched[1][~skipped, 1])) and np.all(np.isfinite(batched[1][:, 0]))
 
 
-@pytest.mark.parametrize(("name", "count", "chunk"), [("poly8", 24576, 2048), ("box", 8192, 512)])
-def test_a_large_batch_searches_in_chunks_of_at_most_the_chunk_size(name, count, chunk,
-                                                                    monkeypatch):
-    """On the CPU, a large batch takes its smooth distance's searches in chunks of
-    `SEARCH_CHUNK_SIZE`: 24,576 2D pairs in chunks of 2,048, 8,192 box pairs in chunks of 512
-    (not 1/8 of the batch's pairs, 3,072 and 1,024): the Newton steps inside the chunk loop
-    carry that many searches."""
+@pytest.mark.parametrize(("name", "count", "chunk"), [
+    ("poly8", 40960, 2048), ("box", 12288, 512), ("poly8", 4480, 280), ("box", 1000, 125),
+    ("box", 100, 100)], ids=["2d-capped", "box-capped", "2d-sixteenth", "box-least", "box-one"])
+def test_searches_run_in_chunks_sized_by_the_batch(name, count, chunk, monkeypatch):
+    """On the CPU, the smooth distance's searches run in chunks of 1/16 of the batch's pairs
+    (`SEARCH_CHUNKS`; 280 of 4,480), at most `SEARCH_CHUNK_SIZE` (40,960 2D pairs in chunks
+    of 2,048, not 2,560; 12,288 box pairs in chunks of 512, not 768) and at least
+    `SMALLEST_SEARCH_CHUNK` unless the batch is smaller (1,000 pairs in 8 chunks of 125, not
+    16 of 63; 100 pairs in one): the Newton steps inside the chunk loop carry that many
+    searches."""
+    assert (smoothing.SEARCH_CHUNKS, smoothing.SMALLEST_SEARCH_CHUNK) == (16, 128)
+    assert smoothing.SEARCH_CHUNK_SIZE == {2: 2048, 3: 512}
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
     shapes = pool(name, np.float32)
     pairs = random_pairs(shapes, shapes, count, np.random.default_rng(76), np.float32)
@@ -504,7 +511,6 @@ def test_a_large_batch_searches_in_chunks_of_at_most_the_chunk_size(name, count,
                 yield from nested_loops(inner, inside or eqn.primitive.name == "while")
 
     closed = jax.make_jaxpr(jax.vmap(value))(*pairs.inputs())
-    assert smoothing.SEARCH_CHUNK_SIZE[shapes.dim] == chunk
     loops = list(nested_loops(closed.jaxpr))
     assert len(loops) == 1
     assert {var.aval.shape[0] for var in loops[0].outvars if var.aval.shape} == {chunk}
@@ -534,8 +540,9 @@ def test_off_the_cpu_both_3d_searches_run_and_give_the_same_answer(monkeypatch):
     cpu_program, on_cpu = run()
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     program, elsewhere = run()
-    # The queue: a ring of 2 slots a pair and one chunk (1/8 of the pairs) more.
-    queue = f"tensor<{2 * 48 + 6}xi32>"
+    # The queue: a ring of 2 slots a pair and one chunk (48 pairs are fewer than
+    # `SMALLEST_SEARCH_CHUNK`: all of them) more.
+    queue = f"tensor<{2 * 48 + 48}xi32>"
     assert queue in cpu_program and queue not in program
     for got, expected in zip(jax.tree.leaves(elsewhere), jax.tree.leaves(on_cpu), strict=True):
         np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
