@@ -529,7 +529,9 @@ chunks of 2,048 (0.85-0.89x at 1e4; 0.99x at 1e3) against one vmap over all sear
 Smaller chunks cost more passes (about 10 us a chunk in 2D, 80 us in 3D); since only the
 wanted searches run, they also waste less on the last chunk, which those fill only in part:
 box pairs, against chunks of 1/8 of the batch alone, 0.98x at 4,480 pairs, 0.89x at
-1e4, 0.95x at 1e5; 20-vertex hulls 0.95x at 1e4 (a 2-core AMD EPYC)."""
+1e4, 0.95x at 1e5; 20-vertex hulls 0.95x at 1e4 (a 2-core AMD EPYC). Half these sizes (1,024
+and 256; same process, one core, both orders) gained nothing: 2D polygons 0.91x / 1.07x at
+1e5 pairs, boxes 1.05x / 0.99x at 1e4 and 0.98x / 1.14x at 1e5, 20-vertex hulls 1.03x at 1e4."""
 
 SEARCH_CHUNKS = 16
 """The fewest chunks of first searches, unless they would hold fewer than
