@@ -467,8 +467,8 @@ def test_batched_searches_equal_single_calls(name, chunk_size, monkeypatch):
         return starts, smoothing._searches(frame, tau, starts, np.bool_(True), rival,
                                            np.float64(0.0))
 
-    starts, batched = jax.jit(jax.vmap(one))(*pairs.inputs(), kind)
-    single = jax.jit(one)
+    starts, batched = jax.jit(jax.vmap(one), compiler_options=FAST_COMPILE)(*pairs.inputs(), kind)
+    single = jax.jit(one, compiler_options=FAST_COMPILE)
     a, params_a, b, params_b = pairs.inputs()
     for i in range(len(pairs)):
         _, alone = single(take(a, i), take(params_a, i), take(b, i), take(params_b, i),
