@@ -538,7 +538,11 @@ SEARCH_CHUNKS = 16
 `SMALLEST_SEARCH_CHUNK` pairs: a small batch's then fill all but the last. Against 8 chunks,
 smooth value and gradient, same process, both orders: 2D polygons 0.92x / 0.93x the time at
 1e4 pairs (chunks of 625 instead of 1,250), 0.97x / 0.99x at 4,480; boxes 0.94x / 0.95x and
-20-vertex hulls 0.98x / 0.99x at 4,480 (a 2-core AMD EPYC, one core)."""
+20-vertex hulls 0.98x / 0.99x at 4,480 (a 2-core AMD EPYC, one core). The queue's tail (the
+repeat passes and second searches after the first searches) fills its chunks only in part:
+a second loop for it, in chunks of 1/8 the size once fewer than a chunk wait, took 0.87x /
+0.94x the time for 2D polygons at 1e4 pairs, 0.98x / 0.99x for boxes, 1.03x for 2D at 1e3,
+but its second copy of the search made compiling 1.5-1.6x as long: not kept."""
 
 SMALLEST_SEARCH_CHUNK = 128
 """The fewest first searches a chunk holds when a batch is cut into `SEARCH_CHUNKS` for its
