@@ -441,12 +441,11 @@ def test_batched_searches_equal_single_calls(name, chunk_size, monkeypatch):
     in passes from a queue, in chunks of 1/16 of the batch's pairs or `SEARCH_CHUNK_SIZE`, the
     smaller: a search that is not done after a pass goes back to the queue's end, and a first
     search that is done appends its pair's second where that is wanted. On 37 pairs, with no
-    least chunk size (chunks of 3, or of 2 with the size capped at 2; the last first chunk
-    partly padding), with 2
-    Newton steps a pass (so that most searches take several passes, the queue's ring comes
-    round, and some end out of passes), half of the second searches from the runner-up, half
-    skipped: the batched results equal single calls (`_passes` in a loop), a skipped search
-    gives its start with loss and slope inf.
+    least chunk size (chunks of 3, or of 2 with the size capped at 2: neither divides 37),
+    with 2 Newton steps a pass (so that most searches take several passes, the queue's ring
+    comes round, and some end out of passes), half of the second searches from the
+    runner-up, half skipped: the batched results equal single calls (`_passes` in a loop), a
+    skipped search gives its start with loss and slope inf.
     (Axes and losses equal to 1e-6: the two programs are fused differently, and a search that
     ends unconverged carries that rounding along its steps to about 1e-7. A search written to
     the wrong slot would be off by the distance between two axes, of order 1.)"""
