@@ -204,14 +204,18 @@ def test_empty_batches():
 
 
 def test_vmap_over_no_pairs_fails_in_jax_as_the_readme_says():
-    """`jax.vmap` of a query over 0 pairs raises JAX's IndexError (its checkify batching
-    rule reads a batched check's first entry), which README.md states next to the advice to
-    use `query_batch` there. When a JAX release lifts it, this fails: update the README."""
+    """Inside a `jax.jit`, `jax.vmap` of a query over 0 pairs raises JAX's IndexError (its
+    checkify batching rule reads a batched check's first entry), which README.md states next
+    to the advice to use `query_batch` there. When a JAX release lifts it, this fails: update
+    the README. An eager `jax.vmap` runs the query's own jit, without the named checks, and
+    returns empty results."""
     shapes, poses = _scene(3, 4, np.float32)
     none = _entry((shapes, poses), slice(0, 0))
     with pytest.raises(IndexError, match="size 0"):
-        jax.vmap(jaxsat.penetration)(*none, *none)
-    assert "A batch of 0 pairs fails under `jax.vmap`" in (
+        jax.jit(jax.vmap(jaxsat.penetration))(*none, *none)
+    empty = jax.vmap(jaxsat.penetration)(*none, *none)
+    assert empty.depth.shape == (0,) and empty.normal.shape == (0, 3)
+    assert "a batch of 0 pairs fails under\n  `jax.vmap`" in (
         pathlib.Path(__file__).resolve().parents[1] / "README.md").read_text()
 
 
