@@ -197,7 +197,7 @@ def guard_non_finite(name: str, signature: inspect.Signature, function, args, kw
     return propagate_non_finite(outputs, inputs)
 
 
-try:  # JAX's private test whether a jaxpr is being built (in every release since 0.6.0)
+try:  # JAX's private test whether a jaxpr is being built (in 0.6.0, the floor, and 0.10.2)
     from jax._src.core import unsafe_am_i_under_a_jit as _under_a_jit
 except ImportError:  # pragma: no cover - depends on the JAX version
     _under_a_jit = None
