@@ -223,8 +223,8 @@ def compiled_query(check, static_argnames=(), name=None):
     `checkify`, `make_jaxpr`, a loop's body) the query is traced into theirs directly (a nested
     jit would be traced again by each transformation); under an eager `grad` or `vmap` it runs
     through a jit of its own with XLA's default settings (`_tracing_a_program`). Either way
-    the outputs pass through `guard_non_finite` (under `name`, default the
-    function's): non-finite input gives NaN, never a plausible number.
+    the outputs pass through `guard_non_finite` (under `name`, default the function's):
+    non-finite input gives NaN, never a plausible number.
 
     Eager calls compile with `EAGER_COMPILER_OPTIONS` on the CPU (XLA's defaults elsewhere),
     one jitted function per backend: a query takes one pair, so its eager
