@@ -203,16 +203,20 @@ except ImportError:  # pragma: no cover - depends on the JAX version
     _under_a_jit = None
 
 
-def _tracing_a_program() -> bool:
+def _tracing_a_program(traced: bool) -> bool:
     """Whether a jaxpr is being built (a user's `jit`, `checkify`, `make_jaxpr`, a loop's
-    body ...), as opposed to an eager transformation (`grad` or `vmap` outside any `jit`).
+    body ...), as opposed to an eager call or an eager transformation (`grad` or `vmap`
+    outside any `jit`); `traced`: some argument is a tracer.
 
     Eager transformations run their primitives one at a time, each dispatched on its own, so
     a query traced into them directly costs a dispatch per primitive on every call: an eager
-    `jax.grad` of a smooth box distance took 4.4 s a call, warm (0.16 s exact). JAX has no
-    public test for this; where its private one is missing the answer is True, the path that
-    is right under every transformation, only slower when eager."""
-    return True if _under_a_jit is None else _under_a_jit()
+    `jax.grad` of a smooth box distance took 4.4 s a call, warm (0.16 s exact). And a query
+    whose arguments are all concrete (closed over) can still be inside a user's `jit`, where
+    a jit with compiler options is refused. JAX has no public test for this; where its
+    private one is missing, `traced` stands in for it (right for plain calls and under
+    `jit`; a query of concrete arguments inside a `jit` then fails as said, and an eager
+    transformation runs primitive by primitive)."""
+    return traced if _under_a_jit is None else _under_a_jit()
 
 
 def compiled_query(check, static_argnames=(), name=None):
@@ -251,9 +255,11 @@ def compiled_query(check, static_argnames=(), name=None):
         @functools.wraps(function)
         def query(*args, **kwargs):
             check(*args, **kwargs)
-            if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
-                if _tracing_a_program():
-                    return guarded(*args, **kwargs)
+            traced = any(isinstance(leaf, jax.core.Tracer)
+                         for leaf in jax.tree.leaves((args, kwargs)))
+            if _tracing_a_program(traced):
+                return guarded(*args, **kwargs)
+            if traced:
                 # An eager grad or vmap: one jitted program, which that transformation turns
                 # into its own (it takes no compiler options: it is not the outermost jit).
                 return transformed(*args, **kwargs)

@@ -290,7 +290,7 @@ def _backend_compiles(call) -> tuple[object, int]:
 def test_an_eager_grad_or_vmap_of_a_query_runs_one_compiled_query(smoothing):
     """Outside any jit, grad and vmap run their primitives one at a time. A query traced into
     them that way compiled each primitive on its own (63 programs for an exact box distance's
-    first gradient, 139 smooth) and the smooth one recompiled its search on every call (4.4 s
+    first gradient, 140 smooth) and the smooth one recompiled its search on every call (4.4 s
     a warm gradient on a 2-core AMD EPYC). Through the query's jit: a few programs once, none
     on a warm call, and the same gradient as the user's own jit."""
     a, b = jaxsat.box([1.0, 0.5, 0.3]), jaxsat.box([0.4, 0.6, 0.2])
@@ -313,6 +313,20 @@ def test_an_eager_grad_or_vmap_of_a_query_runs_one_compiled_query(smoothing):
     assert compiles <= 1, compiles
     np.testing.assert_allclose(batched, jax.jit(jax.vmap(value))(translations), rtol=1e-6,
                                atol=1e-9)
+
+
+@pytest.mark.parametrize("smoothing", [None, 0.01], ids=["exact", "smooth"])
+def test_a_query_of_closed_over_arguments_inside_a_jit_is_traced_into_it(smoothing):
+    """Inside a user's jit a query whose arguments are all concrete (closed over, no tracer)
+    is traced in too: it took the eager call's jit, whose compiler options JAX refuses on a
+    nested jit (ValueError)."""
+    a, b = jaxsat.box([1.0, 0.5, 0.3]), jaxsat.box([0.4, 0.6, 0.2])
+    pose_a = jaxsat.pose3(jnp.zeros(3), jnp.array([1.0, 0.0, 0.0, 0.0]))
+    pose_b = jaxsat.pose3(jnp.array([0.8, 0.2, 0.1]), jnp.array([0.9, 0.1, 0.2, 0.3]))
+    eager = jaxsat.signed_distance(a, pose_a, b, pose_b, smoothing=smoothing)
+    inside = jax.jit(lambda scale: scale * jaxsat.signed_distance(a, pose_a, b, pose_b,
+                                                                  smoothing=smoothing))
+    np.testing.assert_allclose(inside(jnp.ones((), eager.dtype)), eager, rtol=1e-6)
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
