@@ -40,9 +40,12 @@ and "Distance"); breaking one typically costs 2x or more.
    moments, K sums over shared exponentials, computed each exponential K times), and so
    does a pick among candidates (a select over twelve computed parameters recomputed all
    twelve): store the shared values, or pick the inputs and compute once.
-6. **Trace each select once.** `jnp.where` is itself a jitted function: every call adds a
-   nested jit that is traced again under `vmap` and again under `grad`, and a distance query
-   makes about 800 of them. `where` here is the same select written directly.
+6. **Trace each select and each product once.** `jnp.where` is itself a jitted function:
+   every call adds a nested jit that is traced again under `vmap` and again under `grad`,
+   and a distance query makes about 800 of them. `where` here is the same select written
+   directly. So are the operators `+`, `-` and `*` on traced arrays (jnp's ufuncs): the
+   component-form sums and products (`add`, `sub`, `mul`, `total` and the `Vec` functions)
+   take `lax` directly where both operands are arrays of one shape and dtype.
 7. **Count the passes.** Every fusion is a pass over the whole batch, and XLA keeps an
    expensive operation (divide, square root, exponential) that has several users in a pass of
    its own rather than repeat it; a loop step of scalar algebra can so become 100 passes.
@@ -69,6 +72,7 @@ import numpy as np
 
 __all__ = [
     "SELECT_CHAIN_POINTS",
+    "add",
     "chord",
     "columns",
     "cross",
@@ -79,6 +83,7 @@ __all__ = [
     "inline_non_finite_poison",
     "largest_magnitude",
     "materialize",
+    "mul",
     "orthonormal_basis",
     "project",
     "propagate_non_finite",
@@ -88,8 +93,10 @@ __all__ = [
     "safe_sqrt",
     "segment_closest_parameters",
     "store_cotangent",
+    "sub",
     "support_index",
     "take_vec",
+    "total",
     "transposed_product",
     "Vec",
     "as_vec",
@@ -124,6 +131,38 @@ def explicit_float_dtype(dtype) -> jnp.dtype:
                          f"{stored}): call jax.config.update('jax_enable_x64', True) first, or "
                          "set JAX_ENABLE_X64=1")
     return stored
+
+
+def _one_form(x, y) -> bool:
+    """Whether x and y are arrays of one shape and dtype, which `lax` combines as they are
+    (a Python scalar, a broadcast or a promotion goes through jnp's operator instead)."""
+    return (isinstance(x, jax.Array) and isinstance(y, jax.Array) and x.shape == y.shape
+            and x.dtype == y.dtype)
+
+
+def add(x, y):
+    """x + y, as one `lax.add` where the operands have one form (rule 6)."""
+    return jax.lax.add(x, y) if _one_form(x, y) else x + y
+
+
+def sub(x, y):
+    """x - y, as one `lax.sub` where the operands have one form (rule 6)."""
+    return jax.lax.sub(x, y) if _one_form(x, y) else x - y
+
+
+def mul(x, y):
+    """x * y, as one `lax.mul` where the operands have one form (rule 6)."""
+    return jax.lax.mul(x, y) if _one_form(x, y) else x * y
+
+
+def total(terms):
+    """The sum of the terms, added left to right from the first (Python's `sum` starts from
+    the integer 0, an extra add of a constant for each sum; rule 6)."""
+    terms = iter(terms)
+    result = next(terms)
+    for term in terms:
+        result = add(result, term)
+    return result
 
 
 def columns(x) -> list[jax.Array]:
@@ -207,7 +246,7 @@ def _zero_times_every_entry(leaves) -> jax.Array:
     small = [entry for leaf in leaves if leaf.size <= _ENTRY_BY_ENTRY
              for entry in jnp.unstack(leaf.reshape(-1))]
     large = [jnp.sum(leaf * zero) for leaf in leaves if leaf.size > _ENTRY_BY_ENTRY]
-    return sum([entry * zero for entry in small] + large)
+    return total([mul(entry, zero) for entry in small] + large)
 
 
 @jax.custom_jvp
@@ -250,8 +289,8 @@ def _inline_non_finite_poison_jvp(primals, tangents):
 
 def project(axes, points):
     """(C, D) axes . (V, D) points -> (C, V), in component form (rule 1)."""
-    return sum(axis[:, None] * coordinate[None, :]
-               for axis, coordinate in zip(columns(axes), columns(points), strict=True))
+    return total(axis[:, None] * coordinate[None, :]
+                 for axis, coordinate in zip(columns(axes), columns(points), strict=True))
 
 
 def transposed_product(x, y):
@@ -272,7 +311,7 @@ def rotate(rotation, points):
 
 def dot(x, y):
     """x . y over the last axis, (...)."""
-    return sum(a * b for a, b in zip(columns(x), columns(y), strict=True))
+    return total(mul(a, b) for a, b in zip(columns(x), columns(y), strict=True))
 
 
 def cross(x, y):
@@ -384,7 +423,8 @@ def extremes(axes: list[jax.Array], points):
     low = high = None
     rows = as_vecs(points)
     for v in range(points.shape[0]):
-        p = sum(axis * coordinate for axis, coordinate in zip(axes, rows[v], strict=True))
+        p = total(mul(axis, coordinate) for axis, coordinate in zip(axes, rows[v],
+                                                                  strict=True))
         low = p if low is None else where(p < low, p, low)
         high = p if high is None else where(p > high, p, high)
     return low, high
@@ -439,15 +479,15 @@ def vecs_of_columns(point_columns) -> list[Vec]:
 
 
 def vadd(x: Vec, y: Vec) -> Vec:
-    return tuple(a + b for a, b in zip(x, y, strict=True))
+    return tuple(add(a, b) for a, b in zip(x, y, strict=True))
 
 
 def vsub(x: Vec, y: Vec) -> Vec:
-    return tuple(a - b for a, b in zip(x, y, strict=True))
+    return tuple(sub(a, b) for a, b in zip(x, y, strict=True))
 
 
 def vscale(s, x: Vec) -> Vec:
-    return tuple(s * a for a in x)
+    return tuple(mul(s, a) for a in x)
 
 
 def vsum(vectors: list[Vec]) -> Vec:
@@ -458,16 +498,17 @@ def vsum(vectors: list[Vec]) -> Vec:
 
 
 def vdot(x: Vec, y: Vec):
-    return sum(a * b for a, b in zip(x, y, strict=True))
+    return total(mul(a, b) for a, b in zip(x, y, strict=True))
 
 
 def vcross(x: Vec, y: Vec) -> Vec:
-    return (x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0])
+    return (sub(mul(x[1], y[2]), mul(x[2], y[1])), sub(mul(x[2], y[0]), mul(x[0], y[2])),
+            sub(mul(x[0], y[1]), mul(x[1], y[0])))
 
 
 def vcross2(x: Vec, y: Vec):
     """2D cross product, a scalar."""
-    return x[0] * y[1] - x[1] * y[0]
+    return sub(mul(x[0], y[1]), mul(x[1], y[0]))
 
 
 def vrotate(rows: list[Vec], x: Vec) -> Vec:
@@ -477,7 +518,7 @@ def vrotate(rows: list[Vec], x: Vec) -> Vec:
 
 def vrotate_back(rows: list[Vec], x: Vec) -> Vec:
     """R^T x for a rotation given by its rows as Vecs: the inverse of `vrotate`."""
-    return tuple(sum(row[k] * component for row, component in zip(rows, x, strict=True))
+    return tuple(total(mul(row[k], component) for row, component in zip(rows, x, strict=True))
                  for k in range(len(x)))
 
 

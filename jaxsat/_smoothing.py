@@ -44,7 +44,7 @@ import jax.numpy as jnp
 from jaxsat import _kernels as kernels
 from jaxsat._closest import exact_distance, support_gap
 from jaxsat._halfspace import HalfSpace, check_kinds
-from jaxsat._kernels import Vec, dot, materialize, safe_divide, where
+from jaxsat._kernels import Vec, dot, materialize, mul, safe_divide, sub, where
 from jaxsat._pair import PairFrame
 from jaxsat._sat import sat_runner_up
 from jaxsat._shapes import Polytope
@@ -212,9 +212,11 @@ def _side_moments(side: _Side, axis: Vec, tau, store_weights: bool = False
                                                                         strict=True)]
     if store_weights:
         weights = jnp.unstack(materialize(jnp.stack(weights)))
-    total = sum(weights)
-    firsts = [sum(w * row[k] for w, row in zip(weights, rows, strict=True)) for k in range(dim)]
-    seconds = [sum(w * row[k] * row[m] for w, row in zip(weights, rows, strict=True))
+    total = kernels.total(weights)
+    firsts = [kernels.total(mul(w, row[k]) for w, row in zip(weights, rows, strict=True))
+              for k in range(dim)]
+    seconds = [kernels.total(mul(mul(w, row[k]), row[m]) for w, row in zip(weights, rows,
+                                                                            strict=True))
                for k, m in _upper(dim)]
     return jnp.stack([top + tau * jnp.log(total) + offset, total, *firsts, *seconds])
 
@@ -241,8 +243,8 @@ def _unpack(summary: _Summary, packed) -> _Moments:
     mean = [[packed[s][2 + k] / total[s] for k in range(dim)] for s in (0, 1)]
     spread = [[None] * dim for _ in range(dim)]
     for index, (k, m) in enumerate(_upper(dim)):
-        entry = sum(packed[s][2 + dim + index] / total[s] - mean[s][k] * mean[s][m]
-                    for s in (0, 1))
+        entry = kernels.total(sub(packed[s][2 + dim + index] / total[s],
+                                  mul(mean[s][k], mean[s][m])) for s in (0, 1))
         spread[k][m] = spread[m][k] = entry
     # Row 0 is a as it is, row 1 is b negated: b's soft minimum is minus row 1's soft
     # maximum, and b's soft-argmin point is minus its row's mean.

@@ -1,6 +1,7 @@
 """The kernel layer's rules that XLA could silently undo (jaxsat/_kernels.py, its docstring):
-`where` is jnp.where's select without a nested jit, and `materialize` stores a value once, in
-an unbatched program (an eager call) as well as in a batched one. And its segment helper
+`where` is jnp.where's select without a nested jit, and so are the component-form sums and
+products, and `materialize` stores a value once, in an unbatched program (an eager call) as
+well as in a batched one. And its segment helper
 against the oracle's closest points of two segments."""
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from harness import inner_jaxprs, make_pose, pool, random_pairs
 
 import jaxsat
 from jaxsat import _compound, _contacts, _queries
+from jaxsat import _kernels as kernels
 from jaxsat._contacts import _closest_midpoint
 from jaxsat._kernels import materialize, segment_closest_parameters, where
 from jaxsat._pair import EAGER_COMPILER_OPTIONS, eager_compiler_options
@@ -52,6 +54,77 @@ def test_where_rejects_mixed_float_dtypes_as_jnp_where_does():
         jnp.where(MASK, F32, jnp.zeros(3, jnp.float64))
     with pytest.raises(ValueError, match="implicit dtype promotion"):
         where(MASK, F32, jnp.zeros(3, jnp.float64))
+
+
+ARITHMETIC_OPERANDS = [
+    (F32, 2.0 * F32),
+    (F32, 0.5),
+    (3, F32),
+    (I32, 7),
+    (F32[0], F32),
+    (F32[0], F32[1]),
+    (jnp.asarray(2.0), jnp.asarray(3.0)),
+    (jnp.asarray(2.0), jnp.ones((), jnp.float64)),
+    (jnp.ones((2, 1), jnp.float64), jnp.zeros((3,), jnp.float64)),
+    (1.0, -1.0),
+]
+ARITHMETIC_IDS = ["arrays", "scalar-right", "int-left", "ints", "broadcast-scalar", "scalars",
+                  "weak-scalars", "weak-and-strong", "broadcast-2d", "two-python-scalars"]
+
+
+@pytest.mark.parametrize(("x", "y"), ARITHMETIC_OPERANDS, ids=ARITHMETIC_IDS)
+@pytest.mark.parametrize(("helper", "operator"), [
+    (kernels.add, lambda x, y: x + y), (kernels.sub, lambda x, y: x - y),
+    (kernels.mul, lambda x, y: x * y)], ids=["add", "sub", "mul"])
+def test_arithmetic_helpers_equal_the_operators_in_value_shape_and_dtype(helper, operator, x,
+                                                                          y):
+    expected, got = operator(x, y), helper(x, y)
+    assert jnp.shape(got) == jnp.shape(expected)
+    assert jnp.result_type(got) == jnp.result_type(expected)
+    assert getattr(got, "weak_type", True) == getattr(expected, "weak_type", True)
+    np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(kernels.total([x, y, x]), x + y + x)
+
+
+def test_arithmetic_helpers_reject_mixed_float_dtypes_as_the_operators_do():
+    for helper in (kernels.add, kernels.sub, kernels.mul):
+        with pytest.raises(ValueError, match="implicit dtype promotion"):
+            helper(F32, jnp.zeros(3, jnp.float64))
+
+
+def test_component_form_helpers_trace_no_nested_jit(monkeypatch):
+    """Each `+`, `-` or `*` on traced arrays is jnp's jitted ufunc, a nested jit traced again
+    under `vmap` and `grad` (a smooth box distance's value and gradient made 7,429 of them,
+    most in these helpers; the nested jits are inlined, so the jaxpr does not show them)."""
+    from jax._src import pjit
+    calls, counting = collections.Counter(), [False]
+    infer_params = pjit._infer_params
+
+    def counted(fun, *args, **kwargs):
+        if counting[0]:
+            calls[getattr(fun, "__name__", str(fun))] += 1
+        return infer_params(fun, *args, **kwargs)
+
+    def helpers(x, y, rotation):
+        counting[0] = True
+        u, v = kernels.as_vec(x), kernels.as_vec(y)
+        rows = kernels.as_vecs(rotation)
+        outputs = (kernels.vadd(u, v), kernels.vsub(u, v), kernels.vscale(u[0], v),
+                   kernels.vdot(u, v), kernels.vcross(u, v), kernels.vcross2(u[:2], v[:2]),
+                   kernels.vrotate(rows, u), kernels.vrotate_back(rows, u),
+                   kernels.vsum([u, v, u]), kernels.total([u[0], v[1], u[2]]),
+                   kernels.dot(x, y))
+        counting[0] = False
+        return sum(jnp.sum(leaf) for leaf in jax.tree.leaves(outputs))
+
+    x, y = jnp.array([1.0, 2.0, 3.0]), jnp.array([0.5, -1.0, 2.0])
+    rotation = jnp.eye(3)
+    monkeypatch.setattr(pjit, "_infer_params", counted)
+    jax.make_jaxpr(jax.vmap(jax.grad(helpers, argnums=(0, 1, 2))))(
+        *(jnp.stack([value] * 2) for value in (x, y, rotation)))
+    nested = {name: n for name, n in calls.items()
+              if name in ("multiply", "add", "subtract", "true_divide")}
+    assert not nested, nested
 
 
 def _nested_jits(jaxpr) -> collections.Counter:
