@@ -157,10 +157,13 @@ def mul(x, y):
 
 def total(terms):
     """The sum of the terms, added left to right from the first (Python's `sum` starts from
-    the integer 0, an extra add of a constant for each sum; rule 6)."""
-    terms = iter(terms)
-    result = next(terms)
-    for term in terms:
+    the integer 0, an extra add of a constant for each sum; rule 6). Raises ValueError for
+    no terms."""
+    terms = list(terms)
+    if not terms:
+        raise ValueError("total needs at least one term")
+    result = terms[0]
+    for term in terms[1:]:
         result = add(result, term)
     return result
 

@@ -90,6 +90,8 @@ def test_arithmetic_helpers_reject_mixed_float_dtypes_as_the_operators_do():
     for helper in (kernels.add, kernels.sub, kernels.mul):
         with pytest.raises(ValueError, match="implicit dtype promotion"):
             helper(F32, jnp.zeros(3, jnp.float64))
+    with pytest.raises(ValueError, match="at least one term"):
+        kernels.total([])
 
 
 def test_component_form_helpers_trace_no_nested_jit(monkeypatch):
