@@ -1,8 +1,8 @@
 """The kernel layer's rules that XLA could silently undo (jaxsat/_kernels.py, its docstring):
 `where` is jnp.where's select without a nested jit, and so are the component-form sums and
 products, and `materialize` stores a value once, in an unbatched program (an eager call) as
-well as in a batched one. And its segment helper
-against the oracle's closest points of two segments."""
+well as in a batched one. And its segment helper against the oracle's closest points of two
+segments."""
 
 from __future__ import annotations
 
@@ -83,6 +83,10 @@ def test_arithmetic_helpers_equal_the_operators_in_value_shape_and_dtype(helper,
     assert jnp.result_type(got) == jnp.result_type(expected)
     assert getattr(got, "weak_type", True) == getattr(expected, "weak_type", True)
     np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize(("x", "y"), ARITHMETIC_OPERANDS, ids=ARITHMETIC_IDS)
+def test_total_adds_left_to_right_as_the_operators_do(x, y):
     np.testing.assert_array_equal(kernels.total([x, y, x]), x + y + x)
 
 
