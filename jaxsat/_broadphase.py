@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsat._kernels import where
+from jaxsat._kernels import total, where
 from jaxsat._poses import Pose
 from jaxsat._shapes import Polytope
 
@@ -69,8 +69,8 @@ def world_aabbs(shapes: Polytope, poses: Pose) -> tuple[jax.Array, jax.Array]:
                          f"{pose_batch}, {poses.dim}D) must have the same batch shape and dim")
     rotation, translation = poses.rotation, poses.translation
     # R v + t, spelled out per coordinate: a batched matmul of (V, D) by (D, D) is slow on CPU.
-    world = jnp.stack([sum(rotation[..., None, r, k] * shapes.vertices[..., k]
-                           for k in range(shapes.dim)) for r in range(shapes.dim)], axis=-1)
+    world = jnp.stack([total(rotation[..., None, r, k] * shapes.vertices[..., k]
+                             for k in range(shapes.dim)) for r in range(shapes.dim)], axis=-1)
     world = world + translation[..., None, :]
     low, high = world.min(axis=-2), world.max(axis=-2)
     if shapes.radius is None:
@@ -208,12 +208,12 @@ def broad_phase(low: jax.Array, high: jax.Array, *, capacity: int,
     anchor = low[jnp.argmax(finite)]
     anchor = where(jnp.all(jnp.isfinite(anchor)), anchor, jnp.zeros_like(anchor))
     low, high = (where(finite[:, None], corner, anchor) for corner in (low, high))
-    i, j, real, total = _enumerate(low, high, candidate_capacity)
+    i, j, real, candidates = _enumerate(low, high, candidate_capacity)
     overlap = jnp.all((low[i] <= high[j]) & (low[j] <= high[i]), axis=-1)
     keep = real & overlap & finite[i] & finite[j] & _pair_filter(i, j, groups, masks, body_ids)
     pairs = jnp.stack([jnp.minimum(i, j), jnp.maximum(i, j)], axis=-1)
     count = jnp.sum(keep, dtype=jnp.int32)
-    unexamined = jnp.maximum(total - candidate_capacity, 0)
+    unexamined = jnp.maximum(candidates - candidate_capacity, 0)
     return CandidatePairs(pairs=_compact(pairs, keep, capacity, 0),
                           valid=jnp.arange(capacity, dtype=jnp.int32) < count,
                           count=count + unexamined,

@@ -62,6 +62,7 @@ from jaxsat._kernels import (
     rotate,
     safe_divide,
     segment_closest_parameters,
+    total,
     where,
 )
 from jaxsat._pair import PairFrame, cast_pair, compiled_query, pair_frame, relative_pose
@@ -678,8 +679,8 @@ def _widest(across, valid, first, second, min_area):
     p3 = across[third]
     orientation = where(cross2(p2 - p1, p3 - p1) >= 0, 1.0, -1.0)
     # A point outside the triangle adds the triangles it forms with the edges it sees.
-    added = sum(jnp.maximum(-orientation * cross2(end - start, across - start), 0.0)
-                for start, end in ((p1, p2), (p2, p3), (p3, p1)))
+    added = total(jnp.maximum(-orientation * cross2(end - start, across - start), 0.0)
+                  for start, end in ((p1, p2), (p2, p3), (p3, p1)))
     added = where(valid, added, -1.0)
     fourth = jnp.argmax(added)
     return third, fourth, area[third] > min_area, added[fourth] > min_area

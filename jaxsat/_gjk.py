@@ -111,7 +111,7 @@ def _barycentric(corners: list[Vec]):
         mus = [k.safe_divide(k.vdot(offset, k.vcross(edges[1], edges[2])), volume, ok),
                k.safe_divide(k.vdot(edges[0], k.vcross(offset, edges[2])), volume, ok),
                k.safe_divide(k.vdot(edges[0], k.vcross(edges[1], offset)), volume, ok)]
-    weights = (one - sum(mus), *mus)
+    weights = (k.sub(one, k.total(mus)), *mus)
     inside = ok
     for weight in weights:
         inside = inside & (weight >= 0)
@@ -164,7 +164,7 @@ def closest_point_gjk(a_vertices, b_vertices, direction, tolerance, max_iteratio
 
     def simplex_weights(points: list[Vec], pairs):
         """Weights of the stored simplex (its used slots come first)."""
-        count = sum((pair >= 0).astype(jnp.int32) for pair in pairs)
+        count = k.total((pair >= 0).astype(jnp.int32) for pair in pairs)
         weights = [jnp.zeros((), dtype)] * (dim + 1)
         for size in range(1, dim + 2):
             face_weights, _ = _barycentric(points[:size])

@@ -269,7 +269,7 @@ def _nan_if_non_finite_jvp(primals, tangents):
 def _poison_tangent(poison, tangents):
     # Whole leaves, not entries: a gradient then spreads the cotangent over each leaf in one
     # broadcast, where slicing entries out of a leaf takes a pad and an add per entry.
-    return poison * sum(jnp.sum(tangent) for tangent in tangents)
+    return poison * total(jnp.sum(tangent) for tangent in tangents)
 
 
 @jax.custom_jvp

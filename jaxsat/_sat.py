@@ -34,10 +34,12 @@ from jaxsat._kernels import (
     extremes,
     inline_non_finite_poison,
     materialize,
+    mul,
     project,
     rotate,
     safe_normalize,
     store_cotangent,
+    total,
     vadd,
     vcross,
     vdot,
@@ -104,7 +106,7 @@ class ProjectedAxes(NamedTuple):
         """(C,) cosines between each candidate's signed unit axis and `unit`."""
         def along(group, turn):
             direction = unit if turn is None else vrotate_back(as_vecs(turn), as_vec(unit))
-            return sum(component * direction[k] for k, component in enumerate(group))
+            return total(mul(component, direction[k]) for k, component in enumerate(group))
 
         return (jnp.concatenate([along(group, turn) for group, turn in zip(
             self.groups, self.turns, strict=True)]) * self.inverse_norm * self.signs)
@@ -435,9 +437,9 @@ def _parallelepiped_winner(frame: PairFrame) -> jax.Array:
     best = best_index = None
     for index, axis in enumerate(_parallelepiped_axes(frame, rows)):
         width_a = (half_widths[index] if index < 3 else
-                   sum(jnp.abs(vdot(axis, edge)) for edge in edges_a))
+                   total(jnp.abs(vdot(axis, edge)) for edge in edges_a))
         width_b = (half_widths[index] if 3 <= index < 6 else
-                   sum(jnp.abs(vdot(axis, edge)) for edge in edges_b))
+                   total(jnp.abs(vdot(axis, edge)) for edge in edges_b))
         depth = width_a + width_b - jnp.abs(vdot(axis, offset))
         if index >= 6:  # an edge pair: the face normals are unit
             squared = vdot(axis, axis)

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsat import _geometry as geometry
-from jaxsat._kernels import Vec, as_vecs, explicit_float_dtype, vdot, vscale, vsum, where
+from jaxsat._kernels import Vec, as_vecs, explicit_float_dtype, mul, vdot, vscale, vsum, where
 
 __all__ = ["CappedHull", "Polytope", "SizeClass", "box", "cap_hull", "capsule", "circle",
            "float_dtype", "moved", "pad_and_stack", "parallelepiped_frame", "polygon",
@@ -167,9 +167,9 @@ def parallelepiped_frame(shape: Polytope) -> tuple[Vec, list[Vec]]:
     centres, half_edges = [], []
     for direction in as_vecs(shape.edge_directions):
         along = [vdot(normal, direction) for normal in normals]
-        inverse = 1.0 / sum(x * x for x in along)
-        length = sum(half * jnp.abs(x) for half, x in zip(halves, along, strict=True)) * inverse
-        offset = sum(mid * x for mid, x in zip(mids, along, strict=True)) * inverse
+        inverse = 1.0 / vdot(along, along)
+        length = mul(vdot(halves, [jnp.abs(x) for x in along]), inverse)
+        offset = mul(vdot(mids, along), inverse)
         half_edges.append(vscale(length, direction))
         centres.append(vscale(offset, direction))
     return vsum(centres), half_edges

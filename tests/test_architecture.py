@@ -43,6 +43,30 @@ def test_the_checker_sees_both_kinds_of_crossing(tmp_path):
     assert _crossing_private_names(source) == ["jaxsat._shapes._pad_rows", "_shapes._padded_fields"]
 
 
+def _builtin_sum_calls(path: pathlib.Path) -> list[int]:
+    """Lines of `path` that call Python's built-in `sum`."""
+    return [node.lineno for node in ast.walk(ast.parse(path.read_text()))
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+            and node.func.id == "sum"]
+
+
+def test_sums_of_terms_go_through_the_kernel_layer():
+    """The package adds terms with `_kernels.total` (or `vsum`, `vdot`), never Python's
+    `sum`, which starts from the integer 0 and adds through jnp's jitted operator: a nested
+    jit per term that JAX traces again under vmap and grad (kernel rule 6)."""
+    calls = {path.name: lines for path in sorted(PACKAGE.glob("*.py"))
+             if (lines := _builtin_sum_calls(path))}
+    assert calls == {}
+
+
+def test_the_sum_checker_sees_a_call_of_the_builtin(tmp_path):
+    """The check above can fail: it finds `sum(...)`, not a method or jnp's function."""
+    source = tmp_path / "module.py"
+    source.write_text("import jax.numpy as jnp\nx = jnp.sum(y)\nz = y.sum()\n"
+                      "w = sum(v * v for v in y)\n")
+    assert _builtin_sum_calls(source) == [4]
+
+
 def test_public_api_is_listed_once_in_all():
     names = [name for name in dir(jaxsat) if not name.startswith("_")]
     assert len(jaxsat.__all__) == len(set(jaxsat.__all__))
