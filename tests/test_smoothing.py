@@ -75,8 +75,6 @@ def _smooth(vertices_a, params_a, vertices_b, params_b, a, b, tau):
 # Compiled with FAST_COMPILE: these kernels dominate the suite's compile time; the default
 # build is exercised by test_traced_tau_under_jit and the other files' kernels.
 smooth_batch = jax.jit(jax.vmap(_smooth), compiler_options=FAST_COMPILE)
-reverse_batch = jax.jit(jax.vmap(jax.jacrev(_smooth, argnums=(0, 1, 2, 3))),
-                        compiler_options=FAST_COMPILE)
 forward_batch = jax.jit(jax.vmap(jax.jacfwd(_smooth, argnums=(0, 1, 2, 3))),
                         compiler_options=FAST_COMPILE)
 value_and_gradient_batch = jax.jit(
@@ -635,7 +633,7 @@ def check_finite_differences(pairs: Pairs, taus, rng: np.random.Generator, label
     of b, and in everything at once: |fd - g.d| <= tolerance max(1, |g.d|). Padding vertices
     get exactly zero gradient. Returns the largest |g.d|."""
     inputs = smooth_inputs(pairs, taus)
-    gradients = run_batched(reverse_batch, len(pairs), *inputs)
+    _, gradients = run_batched(value_and_gradient_batch, len(pairs), *inputs)
     count, nparams = len(pairs), len(inputs[1])
 
     def leaves(tree, i):
@@ -733,8 +731,8 @@ def test_gradients_match_finite_differences_at_degenerate_features_apart(dim):
 
 @pytest.mark.slow
 def test_forward_mode_matches_reverse_mode():
-    """jacfwd and jacrev of the smooth value agree (vertices and pose parameters), at random
-    and at degenerate configurations."""
+    """jacfwd and grad (reverse mode) of the smooth value agree (vertices and pose
+    parameters), at random and at degenerate configurations."""
     rng = np.random.default_rng(56)
     shapes = pool("poly8", np.float64)
     pairs = random_pairs(shapes, shapes, 32, rng, np.float64)
@@ -742,7 +740,7 @@ def test_forward_mode_matches_reverse_mode():
     for group in (pairs, delicate):
         inputs = smooth_inputs(group, np.full(len(group), 0.1))
         forward = run_batched(forward_batch, len(group), *inputs)
-        reverse = run_batched(reverse_batch, len(group), *inputs)
+        _, reverse = run_batched(value_and_gradient_batch, len(group), *inputs)
         for f, r in zip(jax.tree.leaves(forward), jax.tree.leaves(reverse), strict=True):
             assert np.all(np.isfinite(f))
             np.testing.assert_allclose(f, r, rtol=1e-10, atol=1e-12)
@@ -849,8 +847,7 @@ def _check_smooth_along(pairs: Pairs, step: float, tau: float):
     refs = references(pairs)
     exact = exact_values(refs)
     inputs = smooth_inputs(pairs, np.full(len(pairs), tau))
-    values = run_batched(smooth_batch, len(pairs), *inputs)
-    gradients = run_batched(reverse_batch, len(pairs), *inputs)
+    values, gradients = run_batched(value_and_gradient_batch, len(pairs), *inputs)
     pose_gradient = np.concatenate([np.reshape(g, (len(pairs), -1))
                                     for g in (*gradients[1], *gradients[3])], axis=1)
     exact_jump = np.max(np.abs(np.diff(exact, 2))) / step
@@ -889,8 +886,7 @@ def _check_kink_along(pairs: Pairs, step: float, tau: float):
     jaxsat/_smoothing.py and the README document."""
     refs = references(pairs)
     inputs = smooth_inputs(pairs, np.full(len(pairs), tau))
-    values = run_batched(smooth_batch, len(pairs), *inputs)
-    gradients = run_batched(reverse_batch, len(pairs), *inputs)
+    values, gradients = run_batched(value_and_gradient_batch, len(pairs), *inputs)
     assert np.max(np.abs(np.diff(values))) <= step * (1 + 1e-9)
     lost = exact_values(refs) - values
     assert np.all((lost >= -1e-12) & (lost <= bounds(pairs) * tau + 1e-12))
