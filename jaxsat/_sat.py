@@ -34,7 +34,6 @@ from jaxsat._kernels import (
     extremes,
     inline_non_finite_poison,
     materialize,
-    mul,
     project,
     rotate,
     safe_normalize,
@@ -104,9 +103,10 @@ class ProjectedAxes(NamedTuple):
 
     def cosines_to(self, unit) -> jax.Array:
         """(C,) cosines between each candidate's signed unit axis and `unit`."""
+        unit = as_vec(unit)
+
         def along(group, turn):
-            direction = unit if turn is None else vrotate_back(as_vecs(turn), as_vec(unit))
-            return total(mul(component, direction[k]) for k, component in enumerate(group))
+            return vdot(group, unit if turn is None else vrotate_back(as_vecs(turn), unit))
 
         return (jnp.concatenate([along(group, turn) for group, turn in zip(
             self.groups, self.turns, strict=True)]) * self.inverse_norm * self.signs)
