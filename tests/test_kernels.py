@@ -373,7 +373,7 @@ def test_an_eager_grad_or_vmap_of_a_query_runs_one_compiled_query(smoothing):
     a warm gradient on a 2-core AMD EPYC). Through the query's jit: a few programs once, none
     on a warm call, and the same gradient as the user's own jit. (The references compile with
     the eager calls' settings, `FAST_COMPILE`: the comparison is of the two ways into the
-    query, and the default build of the smooth box pair took most of the test's time.)"""
+    query, and the default build of the smooth box pair is a slower compile.)"""
     a, b = jaxsat.box([1.0, 0.5, 0.3]), jaxsat.box([0.4, 0.6, 0.2])
     pose_a = jaxsat.pose3(jnp.zeros(3), jnp.array([1.0, 0.0, 0.0, 0.0]))
     turn = jaxsat.pose3(jnp.zeros(3), jnp.array([0.9, 0.1, 0.2, 0.3])).rotation
