@@ -1,5 +1,5 @@
-"""`python -m jaxsat bench`, benchmarks/peers.py, kernels.py, distance.py and distance_parts.py
-on tiny cases, without any peer package.
+"""`python -m jaxsat bench`, benchmarks/peers.py, kernels.py and distance.py on tiny cases,
+without any peer package.
 
 Peers (MJX, MuJoCo, Coal, jax2d, pymunk, collision) come with the `bench` extra, which CI does
 not install: these tests force a peer to look missing and check that it is reported as skipped,
@@ -213,25 +213,6 @@ def test_distance_benchmark_reports_ratios_and_unit_gradients(monkeypatch, tmp_p
         assert 0.99 < row[kind]["max_translation_gradient"] <= 1.0 + 1e-5
     assert set(record["eager"]["2d-polygons"]) >= {"penetration", "signed_distance"}
     assert "x penetration" in prefix.with_suffix(".md").read_text()
-
-
-def test_distance_parts_benchmark_times_every_stage(monkeypatch, tmp_path):
-    """benchmarks/distance_parts.py on 256 2D polygon pairs: every stage of the distance
-    queries compiles and runs on the pairs with their exact axes, and the JSON and the table
-    give each as a finite multiple of penetration's time (penetration itself exactly 1)."""
-    monkeypatch.syspath_prepend(str(BENCHMARKS))
-    import distance_parts
-
-    prefix = tmp_path / "parts"
-    assert distance_parts.main(["--quick", "--cases", "2d-polygons", "--sizes", "256",
-                                "--repeats", "1", "--output", str(prefix)]) == 0
-    (row,) = json.loads(prefix.with_suffix(".json").read_text())["rows"]
-    assert row["case"] == "2d-polygons" and row["pairs"] == 256
-    assert set(row["ratio"]) == set(distance_parts.PARTS)
-    assert row["ratio"]["penetration"] == 1.0
-    assert all(0.0 < ratio < float("inf") for ratio in row["ratio"].values())
-    table = prefix.with_suffix(".md").read_text()
-    assert all(f"| {name} |" in table for name in distance_parts.PARTS)
 
 
 def test_rounded_row_matches_the_closed_form(peers, tmp_path):
