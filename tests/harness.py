@@ -1143,12 +1143,15 @@ FAST_COMBINATIONS = {("box", np.float32)}
 
 def every_query_class_dtype(test):
     """Run `test(query, size_class, dtype)` for every public query, size class
-    (`PROPERTY_CLASSES`) and dtype; all but `FAST_COMBINATIONS` are marked slow."""
+    (`PROPERTY_CLASSES`) and dtype; all but `FAST_COMBINATIONS` are marked slow. The parameters
+    have module scope, so pytest runs a module's tests combination by combination (every test
+    of one combination, then the next), and a module can release one combination's compiled
+    programs before the next combination's are built."""
     cases = [pytest.param(query, size_class, dtype, id=f"{query}-{size_class}-{dtype.__name__}",
                           marks=() if (size_class, dtype) in FAST_COMBINATIONS
                           else pytest.mark.slow)
              for query in QUERIES for size_class in PROPERTY_CLASSES for dtype in DTYPES]
-    return pytest.mark.parametrize(("query", "size_class", "dtype"), cases)(test)
+    return pytest.mark.parametrize(("query", "size_class", "dtype"), cases, scope="module")(test)
 
 
 # --------------------------------------------------------------------------------------------
