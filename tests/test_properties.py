@@ -88,21 +88,17 @@ def batched(name: str):
     return jax.jit(jax.vmap(one), compiler_options=FAST_COMPILE)
 
 
-_RUNNING = {"combination": None}
-
-
-@pytest.fixture(autouse=True)
+@pytest.fixture(autouse=True, scope="module")
 def _release_a_finished_combinations_programs(query, size_class, dtype):
-    """When a new (query, size class, dtype) combination begins, drop the programs `batched`
-    compiled for the last one: the tests run combination by combination
-    (`every_query_class_dtype`), and no later test needs them. This file alone in one process
-    peaked at 3.6 GiB with them all kept, 1.9 GiB with this, in the same time (283 and 285 s);
-    dropping every compiled program (`jax.clear_caches`) took it to 0.6 GiB but 310 s, by
-    compiling the small eager programs again."""
-    finished = _RUNNING["combination"]
-    if finished not in (None, (query, size_class, dtype)):
-        batched(finished[0]).clear_cache()
-    _RUNNING["combination"] = (query, size_class, dtype)
+    """Drop the programs `batched` compiled for a (query, size class, dtype) combination once its
+    tests are done: they run combination by combination (`every_query_class_dtype`, whose
+    module-scoped parameters set this fixture up and tear it down once per combination), and no
+    later test needs them. This file alone in one process peaked at 3.6 GiB with them all kept,
+    1.9 GiB with this, in the same time (283 and 285 s); dropping every compiled program
+    (`jax.clear_caches`) took it to 0.6 GiB but 310 s, by compiling the small eager programs
+    again."""
+    yield
+    batched(query).clear_cache()
 
 
 def evaluate(name: str, pairs: Pairs):
